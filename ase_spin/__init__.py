@@ -1,0 +1,14 @@
+"""ase_spin: coupled spin–lattice dynamics for the Atomic Simulation Environment."""
+
+from .calculator import SpinLatticeCalculator
+from .hamiltonian import AtomsTooCloseError, Evaluator, Hamiltonian, Want
+from .spins import get_moments, get_spins, set_spins
+from .terms import BetheSlater, Coupling, Cubic, Exchange, LennardJones, Term
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "SpinLatticeCalculator", "Hamiltonian", "Evaluator", "Want", "AtomsTooCloseError",
+    "set_spins", "get_spins", "get_moments",
+    "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic",
+]

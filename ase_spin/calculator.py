@@ -1,0 +1,104 @@
+"""The ASE calculator: a thin facade over :class:`~ase_spin.hamiltonian.Evaluator`."""
+
+from __future__ import annotations
+
+import numpy as np
+from ase.calculators.calculator import Calculator, PropertyNotImplementedError, all_changes
+
+from .hamiltonian import Hamiltonian, Want
+from .spins import get_moments, split_moments
+
+__all__ = ["SpinLatticeCalculator"]
+
+
+class SpinLatticeCalculator(Calculator):
+    """ASE calculator for a spin–lattice Hamiltonian.
+
+    Parameters
+    ----------
+    terms : list of Term, or Hamiltonian
+        e.g. ``[LennardJones(0.4, 2.2742, 4.7, cutoff="shift"),
+        Exchange(BetheSlater(0.0446928, 0.003496, 1.4885), rc=4.0)]``.
+    skin : float
+        Verlet skin (Å) of the neighbour list kept between calls.
+
+    Spins are read from ``atoms`` (``initial_magmoms``, (N, 3), see
+    :func:`ase_spin.set_spins`). Properties:
+
+    - ``energy``, ``free_energy`` (eV), ``energies`` (eV per atom),
+      ``forces`` (eV/Å), ``stress`` (eV/Å³, Voigt, ASE's sign: ∂E/∂ε / V);
+    - ``magnetic_forces``: B_i = −∂E/∂s_i (eV) with s_i the unit direction,
+      the effective field in energy units (LAMMPS's ``fm`` is B/ħ); zero rows
+      for non-magnetic atoms;
+    - ``magmoms``: the (N, 3) moment vectors μ_i s_i.
+
+    ``results['energy_terms']`` splits the energy by term. Only what is asked
+    for is computed.
+    """
+
+    implemented_properties = ["energy", "free_energy", "energies", "forces", "stress",
+                              "magmoms", "magnetic_forces"]
+    nolabel = True
+
+    def __init__(self, terms, skin=0.3, **kwargs):
+        super().__init__(**kwargs)
+        self.hamiltonian = terms if isinstance(terms, Hamiltonian) else Hamiltonian(terms, skin)
+        self.evaluator = None
+        self._numbers = None
+
+    def todict(self):
+        return {"terms": [repr(t) for t in self.hamiltonian.terms],
+                "skin": self.hamiltonian.skin}
+
+    def get_magnetic_forces(self, atoms=None):
+        """B_i = −∂E/∂s_i (eV), shape (N, 3)."""
+        return self.get_property("magnetic_forces", atoms)
+
+    def bound_evaluator(self, atoms):
+        """The :class:`Evaluator` for ``atoms``, rebuilt only when species,
+        cell, periodicity or the set of magnetic atoms changed."""
+        moments = get_moments(atoms)
+        magnetic = np.linalg.norm(moments, axis=1) > 0.0
+        ev = self.evaluator
+        if ev is None or not np.array_equal(self._numbers, atoms.numbers):
+            ev = self.evaluator = self.hamiltonian.bind(
+                atoms.numbers, atoms.cell.array, atoms.pbc, magnetic)
+            self._numbers = atoms.numbers.copy()
+        else:
+            if not (np.array_equal(ev.cell, atoms.cell.array)
+                    and np.array_equal(ev.pbc, atoms.pbc)):
+                ev.set_cell(atoms.cell.array, atoms.pbc)
+            if not np.array_equal(ev.magnetic, magnetic):
+                ev.set_magnetic(magnetic)
+        return ev, moments
+
+    def calculate(self, atoms=None, properties=("energy",), system_changes=all_changes):
+        super().calculate(atoms, properties, system_changes)
+        atoms = self.atoms
+        want_stress = "stress" in properties
+        if want_stress and atoms.cell.rank < 3:
+            raise PropertyNotImplementedError(
+                "stress needs a cell with three non-zero, independent vectors")
+        ev, moments = self.bound_evaluator(atoms)
+        spins, _ = split_moments(moments)
+        want = Want(
+            energy=bool({"energy", "free_energy"} & set(properties)),
+            energies="energies" in properties,
+            forces="forces" in properties,
+            magnetic_forces="magnetic_forces" in properties,
+            virial=want_stress,
+        )
+        res = ev.evaluate(atoms.positions, spins, want)
+        if want.energy:
+            self.results["energy"] = self.results["free_energy"] = res.energy
+            self.results["energy_terms"] = dict(res.energy_terms)
+        if want.energies:
+            self.results["energies"] = res.energies
+        if want.forces:
+            self.results["forces"] = res.forces
+        if want.magnetic_forces:
+            self.results["magnetic_forces"] = res.magnetic_forces
+        if want_stress:
+            self.results["stress"] = res.virial / atoms.get_volume()
+        if "magmoms" in properties:
+            self.results["magmoms"] = moments.copy()

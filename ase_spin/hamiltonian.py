@@ -1,0 +1,290 @@
+"""A Hamiltonian as a list of terms, and its fast evaluation interface.
+
+    E(r, s) = E_lattice(r) + E_spin(r, s)
+
+:class:`Hamiltonian` holds the terms and splits them into the spin-independent
+(lattice) part and the spin-dependent part. :meth:`Hamiltonian.bind` ties it to
+one system (species, cell, periodicity, which atoms are magnetic) and returns an
+:class:`Evaluator`: the interface integrators call instead of
+``atoms.get_forces()``. An evaluator takes plain arrays (positions, unit spins),
+never copies Atoms, keeps the neighbour list across calls with a Verlet skin,
+and lets the spin-dependent part be re-evaluated from cached pair geometry while
+only the spins change.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .neighbors import NeighborCache
+from .terms.base import Species, Term
+
+__all__ = ["Hamiltonian", "Evaluator", "Want", "Evaluation", "AtomsTooCloseError"]
+
+
+class AtomsTooCloseError(ValueError):
+    """Atoms overlap or are so close that forces are not finite."""
+
+
+@dataclass(frozen=True)
+class Want:
+    """What an evaluation should produce; nothing else is computed."""
+
+    energy: bool = False
+    energies: bool = False
+    forces: bool = False
+    magnetic_forces: bool = False
+    virial: bool = False
+
+    def any_lattice(self):
+        return self.energy or self.energies or self.forces or self.virial
+
+
+@dataclass
+class Evaluation:
+    """Results of one evaluation; fields not asked for are None."""
+
+    energy: float | None = None
+    energy_terms: dict | None = None
+    energies: np.ndarray | None = None
+    forces: np.ndarray | None = None
+    magnetic_forces: np.ndarray | None = None
+    virial: np.ndarray | None = None  # Voigt xx yy zz yz xz xy, eV (= stress * volume)
+
+
+class Hamiltonian:
+    """A sum of terms, e.g. ``Hamiltonian([LennardJones(...), Exchange(...)])``.
+
+    ``skin`` (Å) is the Verlet skin of the neighbour lists its evaluators keep.
+    """
+
+    def __init__(self, terms, skin=0.3):
+        terms = list(terms)
+        for t in terms:
+            if not isinstance(t, Term):
+                raise TypeError(f"Hamiltonian terms must be ase_spin Term objects, got {t!r}")
+        if not terms:
+            raise ValueError("a Hamiltonian needs at least one term")
+        self.terms = terms
+        self.skin = float(skin)
+        names = [t.name for t in terms]
+        self.term_names = [
+            n if names.count(n) == 1 else f"{n}_{names[:k].count(n)}"
+            for k, n in enumerate(names)
+        ]
+        self.cutoff = max(t.cutoff for t in terms)
+
+    @property
+    def lattice_terms(self):
+        return [t for t in self.terms if not t.spin_dependent]
+
+    @property
+    def spin_terms(self):
+        return [t for t in self.terms if t.spin_dependent]
+
+    def bind(self, numbers, cell, pbc, magnetic):
+        """An :class:`Evaluator` for a system with these atomic numbers (or
+        symbols), cell, periodicity and magnetic-atom mask."""
+        return Evaluator(self, numbers, cell, pbc, magnetic)
+
+    def __repr__(self):
+        return f"Hamiltonian({self.terms!r}, skin={self.skin})"
+
+
+def _symbols(numbers):
+    from ase.data import chemical_symbols
+
+    numbers = np.asarray(numbers)
+    if numbers.dtype.kind in "iu":
+        return [chemical_symbols[z] for z in numbers]
+    return [str(s) for s in numbers]
+
+
+class Evaluator:
+    """A :class:`Hamiltonian` bound to one system.
+
+    The fast path for integrators:
+
+    - :meth:`lattice` — energy / forces / virial of the spin-independent terms;
+    - :meth:`exchange_geometry` — pair geometry (J(r_ij), J'(r_ij) d_ij/r_ij) of
+      every spin term at given positions;
+    - :meth:`spin` — magnetic forces, exchange forces and energy for given spins
+      from such a geometry, without touching distances again;
+    - :meth:`evaluate` — all of it at once (what the ASE calculator calls).
+
+    Positions are (N, 3) Cartesian Å; spins are (N, 3) unit directions with zero
+    rows for non-magnetic atoms. ``refresh`` keeps the neighbour list valid; it
+    is called by the methods that take positions.
+    """
+
+    def __init__(self, hamiltonian, numbers, cell, pbc, magnetic):
+        self.hamiltonian = hamiltonian
+        self.species = Species.from_symbols(_symbols(numbers))
+        self.types = self.species.types
+        self.natoms = len(self.types)
+        self._tables = [t.bind(self.species) for t in hamiltonian.terms]
+        self.neighbors = NeighborCache(hamiltonian.cutoff, hamiltonian.skin)
+        self.set_cell(cell, pbc)
+        self.set_magnetic(magnetic)
+
+    # -- system state -----------------------------------------------------
+    def set_cell(self, cell, pbc):
+        self.cell = np.array(cell, dtype=float).reshape(3, 3)
+        self.pbc = np.array(pbc, dtype=bool).reshape(3) if np.ndim(pbc) else np.array([pbc] * 3)
+        self.neighbors.invalidate()
+
+    def set_magnetic(self, magnetic):
+        magnetic = np.asarray(magnetic, dtype=bool)
+        if magnetic.shape != (self.natoms,):
+            raise ValueError(f"magnetic mask must have shape ({self.natoms},)")
+        self.magnetic = magnetic.copy()
+        self.any_magnetic = bool(magnetic.any())
+
+    def refresh(self, positions):
+        """Make the pair lists valid for ``positions``; True if rebuilt."""
+        return self.neighbors.update(positions, self.cell, self.pbc)
+
+    def _pairs(self, term):
+        if term.spin_dependent:
+            return self.neighbors.sublist(term.cutoff, self.magnetic)
+        return self.neighbors.sublist(term.cutoff)
+
+    @property
+    def volume(self):
+        return abs(np.linalg.det(self.cell))
+
+    # -- the fast interface -------------------------------------------------
+    def lattice(self, positions, want, forces=None, energies=None):
+        """Spin-independent terms at ``positions``.
+
+        Forces (and per-atom energies) are *added* to ``forces``/``energies``
+        when given, else returned in new arrays.
+        """
+        positions = _as_positions(positions, self.natoms)
+        self.refresh(positions)
+        ev = _new_evaluation(self.natoms, want, forces, energies)
+        terms = self.hamiltonian.terms
+        for t, name, table in zip(terms, self.hamiltonian.term_names, self._tables):
+            if t.spin_dependent:
+                continue
+            e, w = t.compute(positions, self._pairs(t), self.types, table,
+                             ev.forces if want.forces else _NO_ARRAY,
+                             ev.energies if want.energies else _NO_ARRAY, want)
+            _accumulate(ev, name, e, w, want)
+        if want.forces:
+            _check_finite(ev.forces, positions, self.neighbors, "forces")
+        return ev
+
+    def exchange_geometry(self, positions, virial=False, out=None):
+        """Pair geometry of every spin term at ``positions`` (a list, one per
+        spin term); ``out`` is a previous result whose arrays are reused."""
+        positions = _as_positions(positions, self.natoms)
+        self.refresh(positions)
+        geoms = []
+        k = 0
+        for t, table in zip(self.hamiltonian.terms, self._tables):
+            if not t.spin_dependent:
+                continue
+            previous = out[k] if out is not None else None
+            geoms.append(t.geometry(positions, self._pairs(t), self.types, table,
+                                    virial=virial, out=previous))
+            k += 1
+        return geoms
+
+    def spin(self, geometries, spins, want, magnetic_forces=None, forces=None,
+             energies=None):
+        """Spin-dependent terms for unit ``spins`` from cached ``geometries``.
+
+        Magnetic forces B_i = −∂E/∂s_i (eV), forces, energies are *added* into
+        the given arrays when given, else returned in new arrays.
+        """
+        ev = _new_evaluation(self.natoms, want, forces, energies)
+        if want.magnetic_forces:
+            ev.magnetic_forces = (np.zeros((self.natoms, 3)) if magnetic_forces is None
+                                  else magnetic_forces)
+        b = ev.magnetic_forces if want.magnetic_forces else _NO_ARRAY
+        spin_terms = [(t, n) for t, n in zip(self.hamiltonian.terms,
+                                             self.hamiltonian.term_names) if t.spin_dependent]
+        for (t, name), geom in zip(spin_terms, geometries):
+            e, w = t.spin_pass(geom, spins, b,
+                               ev.forces if want.forces else _NO_ARRAY,
+                               ev.energies if want.energies else _NO_ARRAY, want)
+            _accumulate(ev, name, e, w, want)
+        return ev
+
+    def evaluate(self, positions, spins, want):
+        """Everything ``want`` asks for, lattice and spin parts together."""
+        positions = _as_positions(positions, self.natoms)
+        spins = np.ascontiguousarray(spins, dtype=float)
+        ev = self.lattice(positions, replace(want, magnetic_forces=False))
+        if self.hamiltonian.spin_terms and self.any_magnetic:
+            geoms = self.exchange_geometry(positions, virial=want.virial)
+            sp = self.spin(geoms, spins, want, forces=ev.forces, energies=ev.energies)
+            ev.magnetic_forces = sp.magnetic_forces
+            if want.forces:
+                _check_finite(ev.forces, positions, self.neighbors, "forces")
+            if want.energy:
+                ev.energy += sp.energy
+                ev.energy_terms.update(sp.energy_terms)
+            if want.virial:
+                ev.virial += sp.virial
+        elif want.magnetic_forces:
+            ev.magnetic_forces = np.zeros((self.natoms, 3))
+        if want.energy:
+            for name in self.hamiltonian.term_names:
+                ev.energy_terms.setdefault(name, 0.0)
+        return ev
+
+
+_NO_ARRAY = np.zeros((0, 3))
+
+
+def _as_positions(positions, n):
+    positions = np.ascontiguousarray(positions, dtype=float)
+    if positions.shape != (n, 3):
+        raise ValueError(f"positions must have shape ({n}, 3), got {positions.shape}")
+    if not np.isfinite(positions).all():
+        bad = np.flatnonzero(~np.isfinite(positions).all(axis=1))
+        raise ValueError(f"positions are not finite for atoms {bad[:10].tolist()}")
+    return positions
+
+
+def _new_evaluation(n, want, forces, energies):
+    ev = Evaluation()
+    if want.energy:
+        ev.energy = 0.0
+        ev.energy_terms = {}
+    if want.forces:
+        ev.forces = np.zeros((n, 3)) if forces is None else forces
+    if want.energies:
+        ev.energies = np.zeros(n) if energies is None else energies
+    if want.virial:
+        ev.virial = np.zeros(6)
+    return ev
+
+
+def _accumulate(ev, name, e, w, want):
+    if want.energy:
+        ev.energy += e
+        ev.energy_terms[name] = ev.energy_terms.get(name, 0.0) + e
+    if want.virial:
+        ev.virial += w
+
+
+def _check_finite(forces, positions, neighbors, what):
+    """Turn a NaN/inf from atoms on top of each other into an error naming them."""
+    if np.isfinite(forces).all():
+        return
+    pairs = neighbors.pairs
+    i = pairs.i
+    d = np.linalg.norm(positions[pairs.j] + pairs.shift - positions[i], axis=1)
+    k = int(np.argmin(d)) if len(d) else None
+    where = (f"; closest pair: atoms {i[k]} and {pairs.j[k]} at r = {d[k]:.3g} Å"
+             if k is not None else "")
+    bad = np.flatnonzero(~np.isfinite(forces).all(axis=1))
+    raise AtomsTooCloseError(
+        f"non-finite {what} on atoms {bad[:10].tolist()}: atoms overlap or are "
+        f"unphysically close{where}"
+    )

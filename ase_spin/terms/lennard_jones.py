@@ -1,0 +1,187 @@
+"""Lennard-Jones pair potential, the spin-independent (lattice) term."""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from .base import Term, is_pair_mapping, resolve_pairs
+
+__all__ = ["LennardJones"]
+
+_PLAIN, _SHIFT, _SMOOTH = 0, 1, 2
+_MODES = {"plain": _PLAIN, "shift": _SHIFT, "smooth": _SMOOTH}
+# Columns of the per-species-pair table.
+_RC2, _EPS4, _SIG2, _MODE, _E0, _RO2 = range(6)
+
+
+class LennardJones(Term):
+    r"""Lennard-Jones pair potential (LAMMPS ``lj/cut``)
+
+    .. math::
+
+        u(r) = 4\varepsilon\left[(\sigma/r)^{12} - (\sigma/r)^{6}\right], \qquad r < r_c,
+
+    summed once over every pair, :math:`E = \sum_{i<j} u(r_{ij})`.
+
+    ``cutoff`` says what happens at :math:`r_c`:
+
+    - ``"plain"``: plain truncation, :math:`u = 0` beyond :math:`r_c`; the energy
+      jumps at :math:`r_c` (LAMMPS ``lj/cut`` default).
+    - ``"shift"``: :math:`u(r) - u(r_c)`, continuous energy (LAMMPS
+      ``pair_modify shift yes``; ASE's ``LennardJones(smooth=False)``).
+    - ``"smooth"``: :math:`u(r)\,S(r)` with the switching function of ASE's
+      ``LennardJones(smooth=True)`` (from jax-md / HOOMD-blue), in :math:`x = r^2`,
+
+      .. math::
+
+          S = 1 \ (r < r_o), \qquad
+          S = \frac{(r_c^2 - r^2)^2 (r_c^2 + 2r^2 - 3r_o^2)}{(r_c^2 - r_o^2)^3}
+          \ (r_o \le r < r_c), \qquad S = 0 \ (r \ge r_c),
+
+      so energy and forces are continuous; the switch starts at ``r_on``
+      (default ``0.66 * rc``, ASE's default).
+
+    ``epsilon`` (eV), ``sigma`` (Å), ``rc`` (Å) and ``r_on`` are each either one
+    number for all pairs or a mapping keyed by pairs of chemical symbols,
+    ``{("Fe", "Fe"): 0.4, ("Fe", "Co"): 0.3, ...}``; ``epsilon=0`` or ``None``
+    switches a pair off.
+    """
+
+    name = "lennard_jones"
+    spin_dependent = False
+
+    def __init__(self, epsilon, sigma, rc, cutoff="plain", r_on=None):
+        if cutoff not in _MODES:
+            raise ValueError(f"cutoff must be one of {sorted(_MODES)}, got {cutoff!r}")
+        self.epsilon = epsilon
+        self.sigma = sigma
+        self.rc = rc
+        self.r_on = r_on
+        self.mode = cutoff
+        rcs = list(rc.values()) if is_pair_mapping(rc) else [rc]
+        for r in rcs:
+            if not (np.isfinite(r) and r > 0.0):
+                raise ValueError(f"LennardJones: rc must be positive, got {r}")
+        self.cutoff = float(max(rcs))
+
+    def __repr__(self):
+        return (
+            f"LennardJones(epsilon={self.epsilon!r}, sigma={self.sigma!r}, rc={self.rc!r}, "
+            f"cutoff={self.mode!r})"
+        )
+
+    def bind(self, species):
+        symbols = species.symbols
+        eps = resolve_pairs(self.epsilon, symbols, "LennardJones epsilon")
+        sig = resolve_pairs(self.sigma, symbols, "LennardJones sigma")
+        rcs = resolve_pairs(self.rc, symbols, "LennardJones rc")
+        ron = resolve_pairs(self.r_on, symbols, "LennardJones r_on")
+        nt = len(symbols)
+        table = np.zeros((nt, nt, 6))
+        for a in range(nt):
+            for b in range(nt):
+                e, s, rc, ro = eps[a, b], sig[a, b], rcs[a, b], ron[a, b]
+                if e is None or e == 0.0:
+                    continue
+                if not (np.isfinite(e) and np.isfinite(s) and s > 0.0):
+                    raise ValueError(
+                        f"LennardJones {symbols[a]}-{symbols[b]}: need finite epsilon and "
+                        f"sigma > 0, got epsilon={e}, sigma={s}"
+                    )
+                ro = 0.66 * rc if ro is None else float(ro)
+                if self.mode == "smooth" and not 0.0 <= ro < rc:
+                    raise ValueError(f"LennardJones: need 0 <= r_on < rc, got r_on={ro}, rc={rc}")
+                sr6 = (s / rc) ** 6
+                table[a, b] = (rc * rc, 4.0 * e, s * s, _MODES[self.mode],
+                               4.0 * e * (sr6 * sr6 - sr6), ro * ro)
+        return table
+
+    def compute(self, positions, pairs, types, table, forces, energies, want):
+        """Add this term's forces (and energies) into the given arrays.
+
+        ``want`` is a :class:`~ase_spin.hamiltonian.Want`. Returns (energy, virial
+        in Voigt order xx yy zz yz xz xy, eV).
+        """
+        out = _lj_kernel(positions, pairs.row, pairs.j, pairs.shift, types, table,
+                         forces, energies, want.forces, want.energy, want.energies,
+                         want.virial)
+        return out[0], np.array(out[1:])
+
+
+@nb.njit(cache=True, inline="always")
+def _lj_pair(r2, p):
+    """u(r) and (du/dr)/r for one pair with table row p (r2 < rc²)."""
+    sr2 = p[_SIG2] / r2
+    sr6 = sr2 * sr2 * sr2
+    u = p[_EPS4] * (sr6 * sr6 - sr6)
+    du_r = p[_EPS4] * (6.0 * sr6 - 12.0 * sr6 * sr6) / r2
+    mode = p[_MODE]
+    if mode == _SHIFT:
+        u -= p[_E0]
+    elif mode == _SMOOTH and r2 > p[_RO2]:
+        rc2 = p[_RC2]
+        ro2 = p[_RO2]
+        inv = 1.0 / ((rc2 - ro2) * (rc2 - ro2) * (rc2 - ro2))
+        a = rc2 - r2
+        sw = a * a * (rc2 + 2.0 * r2 - 3.0 * ro2) * inv
+        dsw_dr2 = 6.0 * a * (ro2 - r2) * inv
+        # d/dr (u S) / r = (du/dr / r) S + u dS/dr / r, with dS/dr / r = 2 dS/dr²
+        du_r = du_r * sw + 2.0 * dsw_dr2 * u
+        u *= sw
+    return u, du_r
+
+
+@nb.njit(cache=True, parallel=True)
+def _lj_kernel(pos, row, nbr, shift, types, table, forces, energies,
+               want_forces, want_energy, want_energies, want_virial):
+    """Gather over a full pair list: F_i = Σ_j (u'(r)/r) d_ij, e_i = ½ Σ_j u(r),
+    W = ½ Σ_ij (u'(r)/r) d ⊗ d, with d_ij = r_j + S_ij − r_i."""
+    n = len(row) - 1
+    e = 0.0
+    vxx = 0.0
+    vyy = 0.0
+    vzz = 0.0
+    vyz = 0.0
+    vxz = 0.0
+    vxy = 0.0
+    for i in nb.prange(n):
+        ti = types[i]
+        xi = pos[i, 0]
+        yi = pos[i, 1]
+        zi = pos[i, 2]
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        ei = 0.0
+        for k in range(row[i], row[i + 1]):
+            j = nbr[k]
+            p = table[ti, types[j]]
+            dx = pos[j, 0] + shift[k, 0] - xi
+            dy = pos[j, 1] + shift[k, 1] - yi
+            dz = pos[j, 2] + shift[k, 2] - zi
+            r2 = dx * dx + dy * dy + dz * dz
+            if r2 >= p[_RC2]:
+                continue
+            u, du_r = _lj_pair(r2, p)
+            fx += du_r * dx
+            fy += du_r * dy
+            fz += du_r * dz
+            ei += 0.5 * u
+            if want_virial:
+                h = 0.5 * du_r
+                vxx += h * dx * dx
+                vyy += h * dy * dy
+                vzz += h * dz * dz
+                vyz += h * dy * dz
+                vxz += h * dx * dz
+                vxy += h * dx * dy
+        if want_forces:
+            forces[i, 0] += fx
+            forces[i, 1] += fy
+            forces[i, 2] += fz
+        if want_energies:
+            energies[i] += ei
+        if want_energy:
+            e += ei
+    return e, vxx, vyy, vzz, vyz, vxz, vxy

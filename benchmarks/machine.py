@@ -1,0 +1,37 @@
+"""Describe the machine a benchmark ran on."""
+
+import os
+import platform
+
+
+def describe():
+    import numba
+    import numpy
+
+    import ase_spin
+
+    cpu = platform.processor() or "unknown CPU"
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return (f"# machine: {cpu}, {cores} cores available, {platform.system()} "
+            f"{platform.release()}, Python {platform.python_version()}\n"
+            f"# numba {numba.__version__} ({numba.config.NUMBA_NUM_THREADS} threads, "
+            f"layer {numba.threading_layer() if _threads_started() else 'not started'}), "
+            f"numpy {numpy.__version__}, ase_spin {ase_spin.__version__}")
+
+
+def _threads_started():
+    import numba
+
+    try:
+        numba.threading_layer()
+        return True
+    except ValueError:
+        return False

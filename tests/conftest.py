@@ -1,0 +1,60 @@
+import numpy as np
+import pytest
+from ase import Atoms
+from ase.build import bulk
+
+import ase_spin
+
+CO_LJ = dict(epsilon=0.4, sigma=2.2742, rc=4.7)
+CO_BS = (0.0446928, 0.003496, 1.4885)
+
+
+def random_spins(n, rng):
+    v = rng.normal(size=(n, 3))
+    return v / np.linalg.norm(v, axis=1)[:, None]
+
+
+def cone_spins(n, rng, angle_deg=30.0):
+    """Directions uniform in a cone of half-angle ``angle_deg`` about +z."""
+    cmin = np.cos(np.radians(angle_deg))
+    cz = rng.uniform(cmin, 1.0, n)
+    phi = rng.uniform(0, 2 * np.pi, n)
+    sz = np.sqrt(1 - cz**2)
+    return np.column_stack([sz * np.cos(phi), sz * np.sin(phi), cz])
+
+
+def structures():
+    """name -> Atoms: rattled bulk cells, a triclinic cell, a cell smaller than
+    the cutoff (atoms see their own images), open and mixed boundaries."""
+    rng = np.random.default_rng(7)
+    out = {}
+    out["fcc"] = bulk("Co", "fcc", a=3.54, cubic=True).repeat(2)
+    out["bcc"] = bulk("Fe", "bcc", a=2.87, cubic=True).repeat(2)
+    out["hcp"] = bulk("Co", "hcp", a=2.507, c=4.07).repeat((2, 2, 2))
+    tri = bulk("Co", "fcc", a=3.54, cubic=True).repeat((2, 1, 2))
+    shear = np.array([[1.0, 0.08, -0.05], [0.11, 0.97, 0.06], [-0.07, 0.13, 1.02]])
+    tri.set_cell(tri.cell.array @ shear, scale_atoms=True)
+    tri.rattle(0.08, seed=11)
+    out["triclinic"] = tri
+    out["tiny"] = bulk("Co", "fcc", a=3.54)  # one atom, cell << cutoff
+    out["tiny2"] = Atoms("Co2", cell=[[3.2, 0, 0], [1.1, 3.0, 0], [0.3, 0.9, 3.3]],
+                         scaled_positions=[[0, 0, 0], [0.45, 0.55, 0.5]], pbc=True)
+    cluster = bulk("Co", "fcc", a=3.54, cubic=True).repeat(2)
+    cluster.pbc = False
+    cluster.cell[:] = 0.0
+    out["open"] = cluster
+    slab = bulk("Co", "fcc", a=3.54, cubic=True).repeat((2, 2, 1))
+    slab.pbc = [True, True, False]
+    out["slab"] = slab
+    for name, atoms in out.items():
+        if name != "triclinic":
+            atoms.rattle(0.08, seed=len(name))
+        if len(atoms) > 1:
+            assert atoms.get_all_distances(mic=True)[np.triu_indices(len(atoms), 1)].min() > 2.0
+        ase_spin.set_spins(atoms, random_spins(len(atoms), rng))
+    return out
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(1234)
