@@ -146,10 +146,9 @@ class Evaluator:
         """Make the pair lists valid for ``positions``; True if rebuilt."""
         return self.neighbors.update(positions, self.cell, self.pbc)
 
-    def _pairs(self, term):
-        if term.spin_dependent:
-            return self.neighbors.sublist(term.cutoff, self.magnetic)
-        return self.neighbors.sublist(term.cutoff)
+    def _pairs(self, term, half=False):
+        mask = self.magnetic if term.spin_dependent else None
+        return self.neighbors.sublist(term.cutoff, mask, half)
 
     @property
     def volume(self):
@@ -169,9 +168,9 @@ class Evaluator:
         for t, name, table in zip(terms, self.hamiltonian.term_names, self._tables):
             if t.spin_dependent:
                 continue
-            e, w = t.compute(positions, self._pairs(t), self.types, table,
+            e, w = t.compute(positions, self._pairs(t, half=True), self.types, table,
                              ev.forces if want.forces else _NO_ARRAY,
-                             ev.energies if want.energies else _NO_ARRAY, want)
+                             ev.energies if want.energies else _NO_ENERGIES, want)
             _accumulate(ev, name, e, w, want)
         if want.forces:
             _check_finite(ev.forces, positions, self.neighbors, "forces")
@@ -210,7 +209,7 @@ class Evaluator:
         for (t, name), geom in zip(spin_terms, geometries):
             e, w = t.spin_pass(geom, spins, b,
                                ev.forces if want.forces else _NO_ARRAY,
-                               ev.energies if want.energies else _NO_ARRAY, want)
+                               ev.energies if want.energies else _NO_ENERGIES, want)
             _accumulate(ev, name, e, w, want)
         return ev
 
@@ -219,19 +218,19 @@ class Evaluator:
         positions = _as_positions(positions, self.natoms)
         spins = np.ascontiguousarray(spins, dtype=float)
         ev = self.lattice(positions, replace(want, magnetic_forces=False))
-        if self.hamiltonian.spin_terms and self.any_magnetic:
-            geoms = self.exchange_geometry(positions, virial=want.virial)
-            sp = self.spin(geoms, spins, want, forces=ev.forces, energies=ev.energies)
-            ev.magnetic_forces = sp.magnetic_forces
+        ev.magnetic_forces = np.zeros((self.natoms, 3)) if want.magnetic_forces else None
+        if self.any_magnetic:
+            b = ev.magnetic_forces if want.magnetic_forces else _NO_ARRAY
+            f = ev.forces if want.forces else _NO_ARRAY
+            energies = ev.energies if want.energies else _NO_ENERGIES
+            for t, name, table in zip(self.hamiltonian.terms, self.hamiltonian.term_names,
+                                      self._tables):
+                if t.spin_dependent:
+                    e, w = t.compute(positions, self._pairs(t, half=True), self._pairs(t),
+                                     self.types, table, spins, b, f, energies, want)
+                    _accumulate(ev, name, e, w, want)
             if want.forces:
                 _check_finite(ev.forces, positions, self.neighbors, "forces")
-            if want.energy:
-                ev.energy += sp.energy
-                ev.energy_terms.update(sp.energy_terms)
-            if want.virial:
-                ev.virial += sp.virial
-        elif want.magnetic_forces:
-            ev.magnetic_forces = np.zeros((self.natoms, 3))
         if want.energy:
             for name in self.hamiltonian.term_names:
                 ev.energy_terms.setdefault(name, 0.0)
@@ -239,6 +238,7 @@ class Evaluator:
 
 
 _NO_ARRAY = np.zeros((0, 3))
+_NO_ENERGIES = np.zeros(0)
 
 
 def _as_positions(positions, n):

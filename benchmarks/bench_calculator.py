@@ -64,7 +64,8 @@ def main():
     ap.add_argument("--repeat", type=int, default=7)
     args = ap.parse_args()
     print(describe())
-    print("# fcc Co, LJ rc 4.7 shift + Bethe-Slater exchange rc 4.0, skin 0.5 Å; µs per atom")
+    print(f"# fcc Co, LJ rc 4.7 shift + Bethe-Slater exchange rc 4.0, skin "
+          f"{SpinLatticeCalculator(terms()).hamiltonian.skin} Å; µs per atom")
     print(f"{'N':>8} {'full':>8} {'calc':>8} {'B only':>8} {'geometry':>9} {'nl build':>9}"
           f" {'ase LJ':>8}")
     for n in args.sizes:
@@ -109,6 +110,8 @@ def main():
         us = 1e6 / N
         print(f"{N:>8} {full * us:8.3f} {via * us:8.3f} {bonly * us:8.4f} {gtime * us:9.4f}"
               f" {nl * us:9.3f} {ase_t * us:8.1f}", flush=True)
+    import numba
+    print(f"# numba threading layer used: {numba.threading_layer()}")
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from ..neighbors import balanced_chunks, reduce_buffers
 from .base import Term, is_pair_mapping, resolve_pairs
 
 __all__ = ["Coupling", "BetheSlater", "Cubic", "Exchange", "ExchangeGeometry"]
@@ -205,7 +206,7 @@ class Exchange(Term):
                                     np.empty((n, 3)) if virial else None)
         if couplings is None:
             D = geom.D if geom.D is not None else _NO_D
-            _geometry_kernel(positions, pairs.row, pairs.j, pairs.shift, types, table,
+            _geometry_kernel(positions, pairs.row, pairs.j, pairs.image, pairs.images, types, table,
                              geom.J, geom.G, D, geom.D is not None)
             return geom
         i = pairs.i
@@ -222,6 +223,21 @@ class Exchange(Term):
         if geom.D is not None:
             geom.D[:] = d
         return geom
+
+    def compute(self, positions, half_pairs, full_pairs, types, bound, spins,
+                magnetic_forces, forces, energies, want):
+        """Everything ``want`` asks for at ``positions`` and ``spins`` in one pass
+        over the half list (no pair geometry kept). Returns (energy, virial)."""
+        table, couplings = bound
+        if couplings is not None:
+            geom = self.geometry(positions, full_pairs, types, bound, virial=want.virial)
+            return self.spin_pass(geom, spins, magnetic_forces, forces, energies, want)
+        out = _direct_kernel(nb.get_num_threads(), positions, half_pairs.row, half_pairs.j,
+                             half_pairs.image, half_pairs.images, types, table, spins,
+                             self.energy_offset, magnetic_forces, forces, energies,
+                             want.magnetic_forces, want.forces, want.energy, want.energies,
+                             want.virial)
+        return out[0], out[1:]
 
     def spin_pass(self, geom, spins, magnetic_forces, forces, energies, want):
         """Add B_i = Σ_j J_ij s_j, the exchange forces and energies for ``spins``.
@@ -241,52 +257,56 @@ _NO_D = np.zeros((0, 3))
 
 
 @nb.njit(cache=True, inline="always")
-def _coupling(form, p, r):
-    """J(r) and J'(r) of the compiled coupling forms (see BetheSlater, Cubic)."""
+def _coupling(table, ti, tj, r2):
+    """J(r) and J'(r)/r of the compiled coupling forms (see BetheSlater, Cubic)."""
+    form = table[ti, tj, _FORM]
     if form == _BETHE_SLATER:
-        J1 = p[_P0]
-        J2 = p[_P1]
-        J3 = p[_P2]
-        x = (r / J3) * (r / J3)
+        J1 = table[ti, tj, _P0]
+        J2 = table[ti, tj, _P1]
+        J3 = table[ti, tj, _P2]
+        x = r2 / (J3 * J3)
         ex = np.exp(-x)
         return (4.0 * J1 * x * (1.0 - J2 * x) * ex,
-                8.0 * J1 * r / (J3 * J3) * ex * (1.0 - x - J2 * x * (2.0 - x)))
+                8.0 * J1 / (J3 * J3) * ex * (1.0 - x - J2 * x * (2.0 - x)))
     if form == _CUBIC:
-        rc = p[_P1]
+        rc = table[ti, tj, _P1]
+        r = np.sqrt(r2)
         if r >= rc:
             return 0.0, 0.0
         y = 1.0 - r / rc
-        return p[_P0] * y * y * y, -3.0 * p[_P0] / rc * y * y
+        return table[ti, tj, _P0] * y * y * y, -3.0 * table[ti, tj, _P0] / rc * y * y / r
     return 0.0, 0.0
 
 
 @nb.njit(cache=True, parallel=True)
-def _geometry_kernel(pos, row, nbr, shift, types, table, J, G, D, want_d):
+def _geometry_kernel(pos, row, nbr, image, images, types, table, J, G, D, want_d):
     """J_k = J(r_ij), G_k = J'(r_ij) d_ij / r_ij (and D_k = d_ij) for every pair k."""
     n = len(row) - 1
     for i in nb.prange(n):
         ti = types[i]
+        xi = pos[i, 0]
+        yi = pos[i, 1]
+        zi = pos[i, 2]
         for k in range(row[i], row[i + 1]):
             j = nbr[k]
-            p = table[ti, types[j]]
-            dx = pos[j, 0] + shift[k, 0] - pos[i, 0]
-            dy = pos[j, 1] + shift[k, 1] - pos[i, 1]
-            dz = pos[j, 2] + shift[k, 2] - pos[i, 2]
+            m = image[k]
+            tj = types[j]
+            dx = pos[j, 0] + images[m, 0] - xi
+            dy = pos[j, 1] + images[m, 1] - yi
+            dz = pos[j, 2] + images[m, 2] - zi
             if want_d:
                 D[k, 0] = dx
                 D[k, 1] = dy
                 D[k, 2] = dz
             r2 = dx * dx + dy * dy + dz * dz
-            if r2 > p[_RC2]:
+            if r2 > table[ti, tj, _RC2]:
                 J[k] = 0.0
                 G[k, 0] = 0.0
                 G[k, 1] = 0.0
                 G[k, 2] = 0.0
                 continue
-            r = np.sqrt(r2)
-            Jk, dJ = _coupling(int(p[_FORM]), p, r)
+            Jk, g = _coupling(table, ti, tj, r2)
             J[k] = Jk
-            g = dJ / r
             G[k, 0] = g * dx
             G[k, 1] = g * dy
             G[k, 2] = g * dz
@@ -356,3 +376,109 @@ def _spin_pass_kernel(row, nbr, J, G, D, s, c, B, F, energies,
         if want_energy:
             e += ei
     return e, vxx, vyy, vzz, vyz, vxz, vxy
+
+
+@nb.njit(cache=True, parallel=True)
+def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B, F, energies,
+                   want_b, want_f, want_energy, want_energies, want_virial):
+    """One evaluation from positions over a half pair list (each pair once,
+    nothing stored per pair), w = s_i·s_j − c, g = J'(r)/r, d = r_j + S − r_i:
+
+    B_i += J s_j,  B_j += J s_i,  F_i −= w g d,  F_j += w g d,
+    e_i, e_j −= ½ J w,  W −= w g d ⊗ d.
+
+    Per-thread buffers as in the Lennard-Jones kernel.
+    """
+    n = len(row) - 1
+    bounds = balanced_chunks(row, nthreads)
+    bbuf = np.zeros((nthreads, n if want_b else 0, 3))
+    fbuf = np.zeros((nthreads, n if want_f else 0, 3))
+    ebuf = np.zeros((nthreads, n if want_energies else 0))
+    acc = np.zeros((nthreads, 7))
+    for t in nb.prange(nthreads):
+        e = 0.0
+        vxx = 0.0
+        vyy = 0.0
+        vzz = 0.0
+        vyz = 0.0
+        vxz = 0.0
+        vxy = 0.0
+        for i in range(bounds[t], bounds[t + 1]):
+            ti = types[i]
+            xi = pos[i, 0]
+            yi = pos[i, 1]
+            zi = pos[i, 2]
+            sx = s[i, 0]
+            sy = s[i, 1]
+            sz = s[i, 2]
+            bx = 0.0
+            by = 0.0
+            bz = 0.0
+            fx = 0.0
+            fy = 0.0
+            fz = 0.0
+            ei = 0.0
+            for k in range(row[i], row[i + 1]):
+                j = nbr[k]
+                m = image[k]
+                tj = types[j]
+                dx = pos[j, 0] + images[m, 0] - xi
+                dy = pos[j, 1] + images[m, 1] - yi
+                dz = pos[j, 2] + images[m, 2] - zi
+                r2 = dx * dx + dy * dy + dz * dz
+                if r2 > table[ti, tj, _RC2]:
+                    continue
+                Jk, g = _coupling(table, ti, tj, r2)
+                ux = s[j, 0]
+                uy = s[j, 1]
+                uz = s[j, 2]
+                w = sx * ux + sy * uy + sz * uz - c
+                ei -= Jk * w
+                if want_b:
+                    bx += Jk * ux
+                    by += Jk * uy
+                    bz += Jk * uz
+                    bbuf[t, j, 0] += Jk * sx
+                    bbuf[t, j, 1] += Jk * sy
+                    bbuf[t, j, 2] += Jk * sz
+                wg = w * g
+                if want_f:
+                    gx = wg * dx
+                    gy = wg * dy
+                    gz = wg * dz
+                    fx -= gx
+                    fy -= gy
+                    fz -= gz
+                    fbuf[t, j, 0] += gx
+                    fbuf[t, j, 1] += gy
+                    fbuf[t, j, 2] += gz
+                if want_energies:
+                    ebuf[t, j] -= 0.5 * Jk * w
+                if want_virial:
+                    vxx -= wg * dx * dx
+                    vyy -= wg * dy * dy
+                    vzz -= wg * dz * dz
+                    vyz -= wg * dy * dz
+                    vxz -= wg * dx * dz
+                    vxy -= wg * dx * dy
+            if want_b:
+                bbuf[t, i, 0] += bx
+                bbuf[t, i, 1] += by
+                bbuf[t, i, 2] += bz
+            if want_f:
+                fbuf[t, i, 0] += fx
+                fbuf[t, i, 1] += fy
+                fbuf[t, i, 2] += fz
+            if want_energies:
+                ebuf[t, i] += 0.5 * ei
+            e += ei
+        acc[t, 0] = e
+        acc[t, 1] = vxx
+        acc[t, 2] = vyy
+        acc[t, 3] = vzz
+        acc[t, 4] = vyz
+        acc[t, 5] = vxz
+        acc[t, 6] = vxy
+    reduce_buffers(fbuf, ebuf, F, energies)
+    reduce_buffers(bbuf, ebuf[:, :0], B, energies)
+    return acc.sum(axis=0)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from ..neighbors import balanced_chunks, reduce_buffers
 from .base import Term, is_pair_mapping, resolve_pairs
 
 __all__ = ["LennardJones"]
@@ -50,6 +51,7 @@ class LennardJones(Term):
 
     name = "lennard_jones"
     spin_dependent = False
+    half_list = True
 
     def __init__(self, epsilon, sigma, rc, cutoff="plain", r_on=None):
         if cutoff not in _MODES:
@@ -103,25 +105,26 @@ class LennardJones(Term):
         ``want`` is a :class:`~ase_spin.hamiltonian.Want`. Returns (energy, virial
         in Voigt order xx yy zz yz xz xy, eV).
         """
-        out = _lj_kernel(positions, pairs.row, pairs.j, pairs.shift, types, table,
-                         forces, energies, want.forces, want.energy, want.energies,
-                         want.virial)
-        return out[0], np.array(out[1:])
+        out = _lj_kernel(nb.get_num_threads(), positions, pairs.row, pairs.j, pairs.image,
+                         pairs.images, types, table, forces, energies, want.forces,
+                         want.energy, want.energies, want.virial)
+        return out[0], out[1:]
 
 
 @nb.njit(cache=True, inline="always")
-def _lj_pair(r2, p):
-    """u(r) and (du/dr)/r for one pair with table row p (r2 < rc²)."""
-    sr2 = p[_SIG2] / r2
+def _lj_pair(r2, table, ti, tj):
+    """u(r) and (du/dr)/r for one pair of types ti, tj (r2 < rc²)."""
+    sr2 = table[ti, tj, _SIG2] / r2
     sr6 = sr2 * sr2 * sr2
-    u = p[_EPS4] * (sr6 * sr6 - sr6)
-    du_r = p[_EPS4] * (6.0 * sr6 - 12.0 * sr6 * sr6) / r2
-    mode = p[_MODE]
+    eps4 = table[ti, tj, _EPS4]
+    u = eps4 * (sr6 * sr6 - sr6)
+    du_r = eps4 * (6.0 * sr6 - 12.0 * sr6 * sr6) / r2
+    mode = table[ti, tj, _MODE]
     if mode == _SHIFT:
-        u -= p[_E0]
-    elif mode == _SMOOTH and r2 > p[_RO2]:
-        rc2 = p[_RC2]
-        ro2 = p[_RO2]
+        u -= table[ti, tj, _E0]
+    elif mode == _SMOOTH and r2 > table[ti, tj, _RO2]:
+        rc2 = table[ti, tj, _RC2]
+        ro2 = table[ti, tj, _RO2]
         inv = 1.0 / ((rc2 - ro2) * (rc2 - ro2) * (rc2 - ro2))
         a = rc2 - r2
         sw = a * a * (rc2 + 2.0 * r2 - 3.0 * ro2) * inv
@@ -133,55 +136,82 @@ def _lj_pair(r2, p):
 
 
 @nb.njit(cache=True, parallel=True)
-def _lj_kernel(pos, row, nbr, shift, types, table, forces, energies,
+def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, energies,
                want_forces, want_energy, want_energies, want_virial):
-    """Gather over a full pair list: F_i = Σ_j (u'(r)/r) d_ij, e_i = ½ Σ_j u(r),
-    W = ½ Σ_ij (u'(r)/r) d ⊗ d, with d_ij = r_j + S_ij − r_i."""
+    """Over a half pair list (each pair once), d_ij = r_j + S_ij − r_i:
+
+    F_i += (u'(r)/r) d_ij,  F_j −= (u'(r)/r) d_ij,  e_i, e_j += ½ u(r),
+    W += (u'(r)/r) d_ij ⊗ d_ij.
+
+    Threads take runs of rows of equal pair count and scatter into their own
+    buffers, summed at the end: half the pair work of a full list, no races.
+    """
     n = len(row) - 1
-    e = 0.0
-    vxx = 0.0
-    vyy = 0.0
-    vzz = 0.0
-    vyz = 0.0
-    vxz = 0.0
-    vxy = 0.0
-    for i in nb.prange(n):
-        ti = types[i]
-        xi = pos[i, 0]
-        yi = pos[i, 1]
-        zi = pos[i, 2]
-        fx = 0.0
-        fy = 0.0
-        fz = 0.0
-        ei = 0.0
-        for k in range(row[i], row[i + 1]):
-            j = nbr[k]
-            p = table[ti, types[j]]
-            dx = pos[j, 0] + shift[k, 0] - xi
-            dy = pos[j, 1] + shift[k, 1] - yi
-            dz = pos[j, 2] + shift[k, 2] - zi
-            r2 = dx * dx + dy * dy + dz * dz
-            if r2 >= p[_RC2]:
-                continue
-            u, du_r = _lj_pair(r2, p)
-            fx += du_r * dx
-            fy += du_r * dy
-            fz += du_r * dz
-            ei += 0.5 * u
-            if want_virial:
-                h = 0.5 * du_r
-                vxx += h * dx * dx
-                vyy += h * dy * dy
-                vzz += h * dz * dz
-                vyz += h * dy * dz
-                vxz += h * dx * dz
-                vxy += h * dx * dy
-        if want_forces:
-            forces[i, 0] += fx
-            forces[i, 1] += fy
-            forces[i, 2] += fz
-        if want_energies:
-            energies[i] += ei
-        if want_energy:
+    bounds = balanced_chunks(row, nthreads)
+    fbuf = np.zeros((nthreads, n if want_forces else 0, 3))
+    ebuf = np.zeros((nthreads, n if want_energies else 0))
+    acc = np.zeros((nthreads, 7))
+    for c in nb.prange(nthreads):
+        e = 0.0
+        vxx = 0.0
+        vyy = 0.0
+        vzz = 0.0
+        vyz = 0.0
+        vxz = 0.0
+        vxy = 0.0
+        for i in range(bounds[c], bounds[c + 1]):
+            ti = types[i]
+            xi = pos[i, 0]
+            yi = pos[i, 1]
+            zi = pos[i, 2]
+            fx = 0.0
+            fy = 0.0
+            fz = 0.0
+            ei = 0.0
+            for k in range(row[i], row[i + 1]):
+                j = nbr[k]
+                m = image[k]
+                tj = types[j]
+                dx = pos[j, 0] + images[m, 0] - xi
+                dy = pos[j, 1] + images[m, 1] - yi
+                dz = pos[j, 2] + images[m, 2] - zi
+                r2 = dx * dx + dy * dy + dz * dz
+                if r2 >= table[ti, tj, _RC2]:
+                    continue
+                u, du_r = _lj_pair(r2, table, ti, tj)
+                ei += u
+                if want_forces:
+                    gx = du_r * dx
+                    gy = du_r * dy
+                    gz = du_r * dz
+                    fx += gx
+                    fy += gy
+                    fz += gz
+                    fbuf[c, j, 0] -= gx
+                    fbuf[c, j, 1] -= gy
+                    fbuf[c, j, 2] -= gz
+                if want_energies:
+                    ebuf[c, j] += 0.5 * u
+                if want_virial:
+                    vxx += du_r * dx * dx
+                    vyy += du_r * dy * dy
+                    vzz += du_r * dz * dz
+                    vyz += du_r * dy * dz
+                    vxz += du_r * dx * dz
+                    vxy += du_r * dx * dy
+            if want_forces:
+                fbuf[c, i, 0] += fx
+                fbuf[c, i, 1] += fy
+                fbuf[c, i, 2] += fz
+            if want_energies:
+                ebuf[c, i] += 0.5 * ei
             e += ei
-    return e, vxx, vyy, vzz, vyz, vxz, vxy
+        acc[c, 0] = e
+        acc[c, 1] = vxx
+        acc[c, 2] = vyy
+        acc[c, 3] = vzz
+        acc[c, 4] = vyz
+        acc[c, 5] = vxz
+        acc[c, 6] = vxy
+    reduce_buffers(fbuf, ebuf, forces, energies)
+    return acc.sum(axis=0)
