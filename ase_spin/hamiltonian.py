@@ -38,9 +38,6 @@ class Want:
     magnetic_forces: bool = False
     virial: bool = False
 
-    def any_lattice(self):
-        return self.energy or self.energies or self.forces or self.virial
-
 
 @dataclass
 class Evaluation:
@@ -217,6 +214,8 @@ class Evaluator:
         """Everything ``want`` asks for, lattice and spin parts together."""
         positions = _as_positions(positions, self.natoms)
         spins = np.ascontiguousarray(spins, dtype=float)
+        if spins.shape != (self.natoms, 3):
+            raise ValueError(f"spins must have shape ({self.natoms}, 3), got {spins.shape}")
         ev = self.lattice(positions, replace(want, magnetic_forces=False))
         ev.magnetic_forces = np.zeros((self.natoms, 3)) if want.magnetic_forces else None
         if self.any_magnetic:

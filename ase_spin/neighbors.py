@@ -119,17 +119,21 @@ def _sort_rows(row, j, shift_int, order):
             order[y + 1] = key
 
 
+@nb.njit(cache=True, inline="always")
+def separation(pos, images, i, j, m):
+    """d_ij = r_j + S_m − r_i and |d_ij|² for pair (i, j) with image shift m."""
+    dx = pos[j, 0] + images[m, 0] - pos[i, 0]
+    dy = pos[j, 1] + images[m, 1] - pos[i, 1]
+    dz = pos[j, 2] + images[m, 2] - pos[i, 2]
+    return dx, dy, dz, dx * dx + dy * dy + dz * dz
+
+
 @nb.njit(cache=True, parallel=True)
 def _pair_distances(positions, row, j, image, images, out):
     n = len(row) - 1
     for a in nb.prange(n):
         for k in range(row[a], row[a + 1]):
-            b = j[k]
-            m = image[k]
-            dx = positions[b, 0] + images[m, 0] - positions[a, 0]
-            dy = positions[b, 1] + images[m, 1] - positions[a, 1]
-            dz = positions[b, 2] + images[m, 2] - positions[a, 2]
-            out[k] = np.sqrt(dx * dx + dy * dy + dz * dz)
+            out[k] = np.sqrt(separation(positions, images, a, j[k], image[k])[3])
 
 
 def _image_table(s, cell):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..neighbors import balanced_chunks, reduce_buffers
+from ..neighbors import balanced_chunks, reduce_buffers, separation
 from .base import Term, is_pair_mapping, resolve_pairs
 
 __all__ = ["Coupling", "BetheSlater", "Cubic", "Exchange", "ExchangeGeometry"]
@@ -284,21 +284,14 @@ def _geometry_kernel(pos, row, nbr, image, images, types, table, J, G, D, want_d
     n = len(row) - 1
     for i in nb.prange(n):
         ti = types[i]
-        xi = pos[i, 0]
-        yi = pos[i, 1]
-        zi = pos[i, 2]
         for k in range(row[i], row[i + 1]):
             j = nbr[k]
-            m = image[k]
             tj = types[j]
-            dx = pos[j, 0] + images[m, 0] - xi
-            dy = pos[j, 1] + images[m, 1] - yi
-            dz = pos[j, 2] + images[m, 2] - zi
+            dx, dy, dz, r2 = separation(pos, images, i, j, image[k])
             if want_d:
                 D[k, 0] = dx
                 D[k, 1] = dy
                 D[k, 2] = dz
-            r2 = dx * dx + dy * dy + dz * dz
             if r2 > table[ti, tj, _RC2]:
                 J[k] = 0.0
                 G[k, 0] = 0.0
@@ -405,9 +398,6 @@ def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B
         vxy = 0.0
         for i in range(bounds[t], bounds[t + 1]):
             ti = types[i]
-            xi = pos[i, 0]
-            yi = pos[i, 1]
-            zi = pos[i, 2]
             sx = s[i, 0]
             sy = s[i, 1]
             sz = s[i, 2]
@@ -420,12 +410,8 @@ def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B
             ei = 0.0
             for k in range(row[i], row[i + 1]):
                 j = nbr[k]
-                m = image[k]
                 tj = types[j]
-                dx = pos[j, 0] + images[m, 0] - xi
-                dy = pos[j, 1] + images[m, 1] - yi
-                dz = pos[j, 2] + images[m, 2] - zi
-                r2 = dx * dx + dy * dy + dz * dz
+                dx, dy, dz, r2 = separation(pos, images, i, j, image[k])
                 if r2 > table[ti, tj, _RC2]:
                     continue
                 Jk, g = _coupling(table, ti, tj, r2)

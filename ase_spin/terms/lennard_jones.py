@@ -5,7 +5,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..neighbors import balanced_chunks, reduce_buffers
+from ..neighbors import balanced_chunks, reduce_buffers, separation
 from .base import Term, is_pair_mapping, resolve_pairs
 
 __all__ = ["LennardJones"]
@@ -161,21 +161,14 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
         vxy = 0.0
         for i in range(bounds[c], bounds[c + 1]):
             ti = types[i]
-            xi = pos[i, 0]
-            yi = pos[i, 1]
-            zi = pos[i, 2]
             fx = 0.0
             fy = 0.0
             fz = 0.0
             ei = 0.0
             for k in range(row[i], row[i + 1]):
                 j = nbr[k]
-                m = image[k]
                 tj = types[j]
-                dx = pos[j, 0] + images[m, 0] - xi
-                dy = pos[j, 1] + images[m, 1] - yi
-                dz = pos[j, 2] + images[m, 2] - zi
-                r2 = dx * dx + dy * dy + dz * dz
+                dx, dy, dz, r2 = separation(pos, images, i, j, image[k])
                 if r2 >= table[ti, tj, _RC2]:
                     continue
                 u, du_r = _lj_pair(r2, table, ti, tj)
