@@ -265,6 +265,7 @@ def _new_evaluation(n, want, forces, energies):
 
 
 def _accumulate(ev, name, e, w, want):
+    e = float(e)
     if want.energy:
         ev.energy += e
         ev.energy_terms[name] = ev.energy_terms.get(name, 0.0) + e
