@@ -170,17 +170,12 @@ def balanced_chunks(row, nchunks):
 
 
 @nb.njit(cache=True, parallel=True)
-def reduce_buffers(fbuf, ebuf, forces, energies):
-    """forces[i] += Σ_t fbuf[t, i]; energies[i] += Σ_t ebuf[t, i] (per-thread buffers)."""
-    nthreads = fbuf.shape[0]
-    for i in nb.prange(fbuf.shape[1]):
-        for t in range(nthreads):
-            forces[i, 0] += fbuf[t, i, 0]
-            forces[i, 1] += fbuf[t, i, 1]
-            forces[i, 2] += fbuf[t, i, 2]
-    for i in nb.prange(ebuf.shape[1]):
-        for t in range(nthreads):
-            energies[i] += ebuf[t, i]
+def reduce_threads(buf, out):
+    """out[i] += Σ_t buf[t, i]: sum per-thread buffers (t, n, k) into (n, k)."""
+    for i in nb.prange(buf.shape[1]):
+        for t in range(buf.shape[0]):
+            for c in range(buf.shape[2]):
+                out[i, c] += buf[t, i, c]
 
 
 class NeighborCache:

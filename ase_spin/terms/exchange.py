@@ -5,7 +5,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..neighbors import balanced_chunks, reduce_buffers, separation
+from ..neighbors import balanced_chunks, reduce_threads, separation
 from .base import Term, is_pair_mapping, resolve_pairs
 
 __all__ = ["Coupling", "BetheSlater", "Cubic", "Exchange", "ExchangeGeometry"]
@@ -386,7 +386,7 @@ def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B
     bounds = balanced_chunks(row, nthreads)
     bbuf = np.zeros((nthreads, n if want_b else 0, 3))
     fbuf = np.zeros((nthreads, n if want_f else 0, 3))
-    ebuf = np.zeros((nthreads, n if want_energies else 0))
+    ebuf = np.zeros((nthreads, n if want_energies else 0, 1))
     acc = np.zeros((nthreads, 7))
     for t in nb.prange(nthreads):
         e = 0.0
@@ -439,7 +439,7 @@ def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B
                     fbuf[t, j, 1] += gy
                     fbuf[t, j, 2] += gz
                 if want_energies:
-                    ebuf[t, j] -= 0.5 * Jk * w
+                    ebuf[t, j, 0] -= 0.5 * Jk * w
                 if want_virial:
                     vxx -= wg * dx * dx
                     vyy -= wg * dy * dy
@@ -456,7 +456,7 @@ def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B
                 fbuf[t, i, 1] += fy
                 fbuf[t, i, 2] += fz
             if want_energies:
-                ebuf[t, i] += 0.5 * ei
+                ebuf[t, i, 0] += 0.5 * ei
             e += ei
         acc[t, 0] = e
         acc[t, 1] = vxx
@@ -465,6 +465,7 @@ def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B
         acc[t, 4] = vyz
         acc[t, 5] = vxz
         acc[t, 6] = vxy
-    reduce_buffers(fbuf, ebuf, F, energies)
-    reduce_buffers(bbuf, ebuf[:, :0], B, energies)
+    reduce_threads(fbuf, F)
+    reduce_threads(bbuf, B)
+    reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
     return acc.sum(axis=0)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..neighbors import balanced_chunks, reduce_buffers, separation
+from ..neighbors import balanced_chunks, reduce_threads, separation
 from .base import Term, is_pair_mapping, resolve_pairs
 
 __all__ = ["LennardJones"]
@@ -149,7 +149,7 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
     n = len(row) - 1
     bounds = balanced_chunks(row, nthreads)
     fbuf = np.zeros((nthreads, n if want_forces else 0, 3))
-    ebuf = np.zeros((nthreads, n if want_energies else 0))
+    ebuf = np.zeros((nthreads, n if want_energies else 0, 1))
     acc = np.zeros((nthreads, 7))
     for c in nb.prange(nthreads):
         e = 0.0
@@ -184,7 +184,7 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
                     fbuf[c, j, 1] -= gy
                     fbuf[c, j, 2] -= gz
                 if want_energies:
-                    ebuf[c, j] += 0.5 * u
+                    ebuf[c, j, 0] += 0.5 * u
                 if want_virial:
                     vxx += du_r * dx * dx
                     vyy += du_r * dy * dy
@@ -197,7 +197,7 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
                 fbuf[c, i, 1] += fy
                 fbuf[c, i, 2] += fz
             if want_energies:
-                ebuf[c, i] += 0.5 * ei
+                ebuf[c, i, 0] += 0.5 * ei
             e += ei
         acc[c, 0] = e
         acc[c, 1] = vxx
@@ -206,5 +206,6 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
         acc[c, 4] = vyz
         acc[c, 5] = vxz
         acc[c, 6] = vxy
-    reduce_buffers(fbuf, ebuf, forces, energies)
+    reduce_threads(fbuf, forces)
+    reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
     return acc.sum(axis=0)
