@@ -2,6 +2,7 @@
 
 from .calculator import SpinLatticeCalculator
 from .hamiltonian import AtomsTooCloseError, Evaluator, Hamiltonian, Want
+from .md import HBAR, CollectivePRK, SpinConvergenceError, SpinMDLogger
 from .spins import get_moments, get_spins, set_spins
 from .terms import BetheSlater, Coupling, Cubic, Exchange, LennardJones, Term
 
@@ -10,5 +11,6 @@ __version__ = "0.1.0"
 __all__ = [
     "SpinLatticeCalculator", "Hamiltonian", "Evaluator", "Want", "AtomsTooCloseError",
     "set_spins", "get_spins", "get_moments",
+    "CollectivePRK", "SpinConvergenceError", "SpinMDLogger", "HBAR",
     "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic",
 ]
