@@ -2,7 +2,8 @@
 
 from .calculator import SpinLatticeCalculator
 from .hamiltonian import AtomsTooCloseError, Evaluator, Hamiltonian, Want
-from .md import HBAR, CollectivePRK, SpinConvergenceError, SpinMDLogger
+from .md import (HBAR, CollectivePRK, IntegrationError, SpinConvergenceError, SpinMDLogger,
+                 UnstableStepError)
 from .spins import get_moments, get_spins, set_spins
 from .terms import BetheSlater, Coupling, Cubic, Exchange, LennardJones, Term
 
@@ -11,6 +12,7 @@ __version__ = "0.1.0"
 __all__ = [
     "SpinLatticeCalculator", "Hamiltonian", "Evaluator", "Want", "AtomsTooCloseError",
     "set_spins", "get_spins", "get_moments",
-    "CollectivePRK", "SpinConvergenceError", "SpinMDLogger", "HBAR",
+    "CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError",
+    "SpinMDLogger", "HBAR",
     "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic",
 ]

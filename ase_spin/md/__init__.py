@@ -1,7 +1,8 @@
 """Integrators for spin–lattice dynamics (ASE ``MolecularDynamics``)."""
 
-from .collective import HBAR, CollectivePRK, SpinConvergenceError
+from .collective import (HBAR, CollectivePRK, IntegrationError, SpinConvergenceError,
+                         UnstableStepError)
 from .compositions import COMPOSITIONS
 from .logger import SpinMDLogger
 
-__all__ = ["CollectivePRK", "SpinConvergenceError", "SpinMDLogger", "HBAR", "COMPOSITIONS"]
+__all__ = ["CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError", "SpinMDLogger", "HBAR", "COMPOSITIONS"]

@@ -22,7 +22,8 @@ from . import kernels
 from .compositions import composition_coefficients
 from .logger import SpinMDLogger
 
-__all__ = ["CollectivePRK", "SpinConvergenceError", "HBAR"]
+__all__ = ["CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError",
+           "HBAR"]
 
 #: ħ in eV·(ASE time unit), from CODATA via ase.units.
 HBAR = units._hbar / units._e * units.s
@@ -32,8 +33,16 @@ _FORCES = Want(forces=True)
 _MAX_OUTER = 12
 
 
-class SpinConvergenceError(RuntimeError):
+class IntegrationError(RuntimeError):
+    """A step could not be taken; the Atoms keep the state before it."""
+
+
+class SpinConvergenceError(IntegrationError):
     """The implicit equation for the midpoint spins was not solved."""
+
+
+class UnstableStepError(IntegrationError):
+    """An atom moved implausibly far in one step: the lattice integration blew up."""
 
 
 class _State:
@@ -146,6 +155,9 @@ class CollectivePRK(MolecularDynamics):
         if not isinstance(calc, SpinLatticeCalculator):
             raise TypeError("CollectivePRK needs atoms.calc to be an ase_spin "
                             f"SpinLatticeCalculator, got {type(calc).__name__}")
+        if not calc.hamiltonian.skin > 0.0:
+            raise ValueError("CollectivePRK needs a neighbour-list skin > 0 (the "
+                             "calculator's skin=...): one pair list serves q and q̃")
         ev, moments = calc.bound_evaluator(atoms)
         self._calc = calc
         self.ev = ev
@@ -254,9 +266,8 @@ class CollectivePRK(MolecularDynamics):
             self._lattice_step(h, want_energy)
             return 0, 0
         if self.frozen:
-            W, its = self._solve(st.s, st.Gq, st.Gq, self._predict(stage), h)
+            W, st.s, its = self._solve(st.s, st.Gq, st.Gq, self._predict(stage), h)
             st.history[stage].append(W)
-            kernels.reflect(st.s, W, st.s)
             return its, 0
         return self._coupled_step(h, stage, want_energy)
 
@@ -266,6 +277,7 @@ class CollectivePRK(MolecularDynamics):
         P = np.empty_like(st.p)
         kernels.kick(st.p, 0.5 * h, self._md_forces(st.FL, st.q), P)
         qt, P = self._drift(st.q, P, h)
+        self._check_displacement(st.q, qt, h)
         self._lattice_at(qt, want_energy)
         Ft = self._md_forces(st.FL, qt)
         kernels.kick(P, 0.5 * h, Ft, P)
@@ -285,14 +297,16 @@ class CollectivePRK(MolecularDynamics):
             F = self._exchange_forces(st.Gq, W, st.FL)
             kernels.kick(p, 0.5 * h, self._md_forces(F, q), P)
             qt, P = self._drift(q, P, h)
-            if qt_used is not None and np.abs(qt - qt_used).max() <= qtol:
+            if qt_used is None:
+                self._check_displacement(q, qt, h)
+            elif np.abs(qt - qt_used).max() <= qtol:
                 break
             builds = ev.neighbors.builds
             self._Gqt = ev.exchange_geometry(qt, out=self._Gqt)
             if ev.neighbors.builds != builds:  # new pair list: G(q) must use it too
                 st.Gq = ev.exchange_geometry(q)
             geometries += 1
-            W, its = self._solve(s, st.Gq, self._Gqt, W, h)
+            W, s_new, its = self._solve(s, st.Gq, self._Gqt, W, h)
             iterations += its
             qt_used = qt
         else:
@@ -303,8 +317,6 @@ class CollectivePRK(MolecularDynamics):
         F = self._exchange_forces(self._Gqt, W, st.FL)
         kernels.kick(P, 0.5 * h, self._md_forces(F, qt), P)
         st.history[stage].append(W)
-        s_new = np.empty_like(s)
-        kernels.reflect(s, W, s_new)
         st.q, st.p, st.s = qt, self._adjust_momenta(P, qt), s_new
         st.Gq, self._Gqt = self._Gqt, st.Gq
         return iterations, geometries
@@ -323,6 +335,21 @@ class CollectivePRK(MolecularDynamics):
         F = FL.copy()
         self.ev.spin(geoms, W, _FORCES, forces=F)
         return F
+
+    def _check_displacement(self, q, qt, h):
+        """One step may move an atom at most half the neighbour-list skin: that
+        keeps one pair list valid at both q and q̃, and anything near it means the
+        lattice integration has blown up (a Störmer–Verlet step moves atoms by
+        ~1e-3 Å at ordinary temperatures and timesteps)."""
+        limit = 0.5 * self.ev.neighbors.skin
+        moved, atom = kernels.max_displacement(q, qt) if len(q) else (0.0, 0)
+        if not moved <= limit:
+            raise UnstableStepError(
+                f"atom {atom} moved {moved:.3g} Å in one step (at most half the "
+                f"neighbour-list skin, {limit:.3g} Å, is allowed) at step {self.nsteps}: "
+                f"the lattice integration is unstable at this timestep "
+                f"({h / units.fs:.4g} fs); reduce it. The atoms keep the state before "
+                f"this step.")
 
     def _drift(self, q, P, h):
         """q̃ = q + h P/m, with constraints applied as VelocityVerlet does
@@ -377,16 +404,17 @@ class CollectivePRK(MolecularDynamics):
             Jbar = np.add(Gq[0].J, Gqt[0].J)
             Jbar *= 0.5
             pairs = Gq[0].pairs
+            stilde = np.zeros_like(s)
             its, delta, status, which = kernels.midpoint_solve(
-                nb.get_num_threads(), pairs.row, pairs.j, Jbar, s, W, self._Wnext,
+                nb.get_num_threads(), pairs.row, pairs.j, Jbar, s, W, self._Wnext, stilde,
                 scale, self.tol, floor, self.max_iter)
             if which == 1:
                 W, self._Wnext = self._Wnext, W
         else:
-            W, its, delta, status = self._solve_terms(s, Gq, Gqt, W, scale, floor)
+            W, stilde, its, delta, status = self._solve_terms(s, Gq, Gqt, W, scale, floor)
         if status == kernels.NOT_CONVERGED:
             self._raise_not_converged(Gq, Gqt, W, its, delta, scale)
-        return W.copy() if W is self._Wnext else W, its
+        return W, stilde, its
 
     def _solve_terms(self, s, Gq, Gqt, W, scale, floor):
         """The same iteration for several spin terms (B̄ summed over terms)."""
@@ -397,20 +425,21 @@ class CollectivePRK(MolecularDynamics):
         for it in range(1, self.max_iter + 1):
             B = ev.spin(Gq, W, want).magnetic_forces
             ev.spin(Gqt, W, want, magnetic_forces=B)
-            v = 2.0 * s + 0.5 * scale * np.cross(W, B)
+            stilde = s + 0.5 * scale * np.cross(W, B)
+            v = s + stilde
             norm = np.linalg.norm(v, axis=1)
             norm[norm == 0.0] = 1.0
             Wn = np.where(magnetic, v / norm[:, None], 0.0)
             delta = float(np.abs(Wn - W).max()) if len(W) else 0.0
             W = Wn
             if not delta <= 2.0:
-                return W, it, delta, kernels.NOT_CONVERGED
+                return W, stilde, it, delta, kernels.NOT_CONVERGED
             if delta <= self.tol:
-                return W, it, delta, kernels.CONVERGED
+                return W, stilde, it, delta, kernels.CONVERGED
             if delta <= floor and delta >= previous:
-                return W, it, delta, kernels.ROUNDOFF
+                return W, stilde, it, delta, kernels.ROUNDOFF
             previous = delta
-        return W, self.max_iter, delta, kernels.NOT_CONVERGED
+        return W, stilde, self.max_iter, delta, kernels.NOT_CONVERGED
 
     def _raise_not_converged(self, Gq, Gqt, W, its, delta, scale):
         field = np.zeros(len(W))

@@ -12,7 +12,7 @@ CONVERGED, ROUNDOFF, NOT_CONVERGED = 0, 1, 2
 
 
 @nb.njit(cache=True, parallel=True)
-def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, scale, tol, floor, max_iter):
+def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter):
     r"""Solve the spherical-midpoint equation for fixed pair couplings J̄_ij:
 
     .. math::
@@ -26,7 +26,10 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, scale, tol, floor, max
     Rows with s_i = 0 (non-magnetic atoms) are skipped.
 
     ``W`` holds the starting guess; ``Wnext`` is a buffer of the same shape (zero
-    on non-magnetic rows). Stops when max|ΔW| ≤ ``tol``, or when the change has
+    on non-magnetic rows). ``stilde`` receives s̃ = s + c W × B̄ of the last
+    sweep: the end point written as an increment, so its rounding errors are
+    those of adding a small vector to s, unbiased, and |s̃| = |s| holds to
+    round-off without renormalising. Stops when max|ΔW| ≤ ``tol``, or when the change has
     stopped falling below ``floor`` (round-off reached). Returns (iterations,
     last max|ΔW|, status, index of the buffer holding the result: 0 = W, 1 = Wnext).
     """
@@ -58,9 +61,15 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, scale, tol, floor, max
                 wx = cur[i, 0]
                 wy = cur[i, 1]
                 wz = cur[i, 2]
-                vx = 2.0 * sx + scale * (wy * bz - wz * by)
-                vy = 2.0 * sy + scale * (wz * bx - wx * bz)
-                vz = 2.0 * sz + scale * (wx * by - wy * bx)
+                tx = sx + scale * (wy * bz - wz * by)
+                ty = sy + scale * (wz * bx - wx * bz)
+                tz = sz + scale * (wx * by - wy * bx)
+                stilde[i, 0] = tx
+                stilde[i, 1] = ty
+                stilde[i, 2] = tz
+                vx = sx + tx
+                vy = sy + ty
+                vz = sz + tz
                 inv = 1.0 / np.sqrt(vx * vx + vy * vy + vz * vz)
                 vx *= inv
                 vy *= inv
@@ -83,18 +92,20 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, scale, tol, floor, max
     return max_iter, delta, NOT_CONVERGED, which
 
 
-@nb.njit(cache=True, parallel=True)
-def reflect(s, W, out):
-    """s̃_i = 2 (s_i·W_i) W_i − s_i: the end point of the midpoint step.
-
-    Equal to s + c W × B̄ at the solution (W bisects s and s̃), and it keeps
-    |s̃_i| = |s_i| to round-off whatever the iteration's last residual.
-    """
-    for i in nb.prange(s.shape[0]):
-        d = 2.0 * (s[i, 0] * W[i, 0] + s[i, 1] * W[i, 1] + s[i, 2] * W[i, 2])
-        out[i, 0] = d * W[i, 0] - s[i, 0]
-        out[i, 1] = d * W[i, 1] - s[i, 1]
-        out[i, 2] = d * W[i, 2] - s[i, 2]
+@nb.njit(cache=True)
+def max_displacement(a, b):
+    """(largest |a_i − b_i|, its atom index)."""
+    worst = 0.0
+    at = 0
+    for i in range(a.shape[0]):
+        dx = a[i, 0] - b[i, 0]
+        dy = a[i, 1] - b[i, 1]
+        dz = a[i, 2] - b[i, 2]
+        d2 = dx * dx + dy * dy + dz * dz
+        if not d2 <= worst:
+            worst = d2
+            at = i
+    return np.sqrt(worst), at
 
 
 @nb.njit(cache=True, parallel=True)

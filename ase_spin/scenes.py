@@ -1,0 +1,74 @@
+"""The reference scenes: the paper's chain and the fcc Co crystal of the LAMMPS
+comparison, as ready-to-run ASE Atoms (calculator and spins attached)."""
+
+from __future__ import annotations
+
+import numpy as np
+from ase import Atoms
+from ase.build import bulk
+
+from .calculator import SpinLatticeCalculator
+from .spins import set_spins
+from .terms import BetheSlater, Cubic, Exchange, LennardJones
+
+__all__ = ["paper_chain", "paper_chain_terms", "fcc_cobalt", "fcc_cobalt_terms", "cone"]
+
+
+def paper_chain_terms():
+    """The paper's Hamiltonian in this package's conventions (docs/conventions.md):
+    LJ with ε = U0 = 1 eV, σ = r_m 2^(−1/6) Å, plain cutoff 1.9 Å (nearest
+    neighbours only); H_m = +Σ J0 (1 − r/rc)³ w_i·w_{i+1} with J0 = 10 is the
+    cubic exchange with J0 = −10 in E = −Σ J s_i·s_j."""
+    return [LennardJones(epsilon=1.0, sigma=2.0 ** (-1.0 / 6.0), rc=1.9),
+            Exchange(Cubic(J0=-10.0, rc=1.5))]
+
+
+def paper_chain(n=30):
+    """The paper's experiment: n atoms of mass 1 at x_k = k on a periodic line of
+    length n, at rest, spins w_k ∝ (0.8 cos 2πk/n + 0.5 sin 4πk/n,
+    0.8 sin 2πk/n + 0.5 cos 4πk/n, 1). Integrate it with ``hbar=1,
+    precession="spin"`` (the paper's reduced units and convention)."""
+    k = np.arange(1, n + 1)
+    atoms = Atoms(f"H{n}", positions=np.column_stack([k, np.zeros(n), np.zeros(n)]),
+                  cell=[float(n), 10.0, 10.0], pbc=[True, False, False])
+    atoms.set_masses(np.ones(n))
+    w = np.column_stack([0.8 * np.cos(2 * np.pi * k / n) + 0.5 * np.sin(4 * np.pi * k / n),
+                         0.8 * np.sin(2 * np.pi * k / n) + 0.5 * np.cos(4 * np.pi * k / n),
+                         np.ones(n)])
+    set_spins(atoms, w / np.linalg.norm(w, axis=1)[:, None])
+    atoms.calc = SpinLatticeCalculator(paper_chain_terms())
+    return atoms
+
+
+def cone(n, rng, angle_deg=30.0):
+    """n unit vectors uniform in a cone of half-angle ``angle_deg`` about +z."""
+    cos_t = rng.uniform(np.cos(np.radians(angle_deg)), 1.0, n)
+    phi = rng.uniform(0.0, 2.0 * np.pi, n)
+    sin_t = np.sqrt(1.0 - cos_t**2)
+    return np.column_stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t])
+
+
+def fcc_cobalt_terms():
+    """peers.md: LJ ε = 0.4 eV, σ = 2.2742 Å, rc = 4.7 Å shifted; Bethe–Slater
+    exchange of LAMMPS examples/SPIN/cobalt_fcc, rc = 4.0 Å."""
+    return [LennardJones(epsilon=0.4, sigma=2.2742, rc=4.7, cutoff="shift"),
+            Exchange(BetheSlater(J1=0.0446928, J2=0.003496, J3=1.4885), rc=4.0)]
+
+
+def fcc_cobalt(n=5, temperature_K=100.0, cone_deg=30.0, seed=0, magnitude=1.72):
+    """The benchmark scene of peers.md: fcc Co, a = 3.54 Å, 4n³ atoms in a cubic
+    periodic box, mass 58.93 amu, spins uniform in a ``cone_deg`` cone about +z,
+    Maxwell–Boltzmann velocities at ``temperature_K`` (total momentum zeroed)."""
+    atoms = bulk("Co", "fcc", a=3.54, cubic=True).repeat(n)
+    atoms.set_masses(np.full(len(atoms), 58.93))
+    rng = np.random.default_rng(seed)
+    set_spins(atoms, cone(len(atoms), rng, cone_deg), magnitudes=magnitude)
+    if temperature_K > 0:
+        from ase import units
+
+        m = atoms.get_masses()[:, None]
+        p = rng.normal(size=(len(atoms), 3)) * np.sqrt(m * units.kB * temperature_K)
+        p -= p.sum(axis=0) / len(atoms)
+        atoms.set_momenta(p)
+    atoms.calc = SpinLatticeCalculator(fcc_cobalt_terms())
+    return atoms
