@@ -111,6 +111,7 @@ class LammpsSpin:
             f"fix 1 all nve/spin lattice {lattice}",
             f"timestep {timestep_fs * 1e-3!r}",
             "compute fm all property/atom fmx fmy fmz",
+            "compute sp all property/atom spx spy spz",
             "compute pv all pressure NULL virial",
             "compute ex all pair spin/exchange",
             "thermo_style custom step pe ke etotal c_ex c_pv[1]",
@@ -145,7 +146,8 @@ class LammpsSpin:
                                (image >> 20) - 512])
         x = x + img @ self.atoms.cell.array
         v = np.array(lmp.numpy.extract_atom("v")[:n])
-        sp = np.array(lmp.numpy.extract_atom("sp")[:n, :3])
+        lmp.command("run 0 post no")  # refresh the per-atom computes
+        sp = np.array(lmp.numpy.extract_compute("sp", 1, 2)[:n])
         return x, v, sp
 
     def close(self):

@@ -39,3 +39,34 @@ def test_energy_forces_magnetic_forces_stress_agree_with_lammps(offset):
     assert np.abs(F - ref["forces"]).max() < 1e-12 * np.abs(F).max()
     assert np.abs(B - ref["magnetic_forces"]).max() < 1e-13 * np.abs(B).max()
     assert np.abs(S - ref["stress"]).max() < 1e-12 * np.abs(S).max()
+
+
+def test_trajectory_converges_to_the_same_limit_as_lammps():
+    """fcc Co (peers.md scene, moment convention, LAMMPS's ħ): both codes' final
+    states approach the DOP853 solution at order 2, so they approach each other."""
+    from ase import units
+
+    from ase_spin.md.ode import reference_solution
+    from ase_spin.scenes import fcc_cobalt
+
+    hbar = ase_spin.lammps_peer.LAMMPS_HBAR * 1000.0 * units.fs
+    t_fs = 10.0
+    xr, _, sr = reference_solution(fcc_cobalt(2), t_fs * units.fs, hbar=hbar)
+    rows = []
+    for dt in (0.2, 0.1, 0.05):
+        atoms = fcc_cobalt(2)
+        ase_spin.CollectivePRK(atoms, dt * units.fs, hbar=hbar).run(int(round(t_fs / dt)))
+        lmp = LammpsSpin(fcc_cobalt(2), (CO_LJ["epsilon"], CO_LJ["sigma"], CO_LJ["rc"], True),
+                         (*CO_BS, 4.0, False), timestep_fs=dt)
+        lmp.run(int(round(t_fs / dt)))
+        xl, _, sl = lmp.state()
+        lmp.close()
+        so = ase_spin.get_spins(atoms)
+        rows.append((np.abs(so - sr).max(), np.abs(sl - sr).max(), np.abs(so - sl).max(),
+                     np.abs(atoms.positions - xl).max()))
+    rows = np.array(rows)
+    assert np.all(rows[:, :3] > 1e-10)  # errors, not round-off
+    for k in range(3):  # ours, LAMMPS and their difference: all fall as dt²
+        ratios = rows[:-1, k] / rows[1:, k]
+        assert np.all((ratios > 3.5) & (ratios < 4.5)), (k, rows)
+    assert np.all(rows[1:, 3] < rows[:-1, 3])
