@@ -173,9 +173,11 @@ class Evaluator:
             _check_finite(ev.forces, positions, self.neighbors, "forces")
         return ev
 
-    def exchange_geometry(self, positions, virial=False, out=None):
+    def exchange_geometry(self, positions, virial=False, out=None, mean_with=None):
         """Pair geometry of every spin term at ``positions`` (a list, one per
-        spin term); ``out`` is a previous result whose arrays are reused."""
+        spin term); ``out`` is a previous result whose arrays are reused;
+        ``mean_with`` a result on the same pair lists whose couplings are
+        averaged with these into each geometry's ``Jbar``."""
         positions = _as_positions(positions, self.natoms)
         self.refresh(positions)
         geoms = []
@@ -184,8 +186,9 @@ class Evaluator:
             if not t.spin_dependent:
                 continue
             previous = out[k] if out is not None else None
+            other = mean_with[k] if mean_with is not None else None
             geoms.append(t.geometry(positions, self._pairs(t), self.types, table,
-                                    virial=virial, out=previous))
+                                    virial=virial, out=previous, mean_with=other))
             k += 1
         return geoms
 

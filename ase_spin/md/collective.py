@@ -18,6 +18,7 @@ from ase.md.md import MolecularDynamics
 from ..calculator import SpinLatticeCalculator
 from ..hamiltonian import Want
 from ..spins import split_moments
+from ..terms.exchange import ExchangeGeometry
 from . import kernels
 from .compositions import composition_coefficients
 from .logger import SpinMDLogger
@@ -49,7 +50,7 @@ class _State:
     """What the integrator holds between steps (design.md, "one step as data")."""
 
     __slots__ = ("q", "p", "s", "mu", "FL", "Gq", "EL", "EL_terms", "written",
-                 "history", "observables")
+                 "history", "predictor_order", "theta", "observables")
 
 
 class CollectivePRK(MolecularDynamics):
@@ -176,7 +177,11 @@ class CollectivePRK(MolecularDynamics):
         if not self.frozen:
             st.FL = ev.lattice(st.q, _FORCES).forces
         st.Gq = ev.exchange_geometry(st.q) if self.magnetic else None
-        st.history = [deque(maxlen=3) for _ in self.gammas]
+        st.history = [deque(maxlen=4) for _ in self.gammas]
+        st.predictor_order = [0 for _ in self.gammas]
+        st.theta = [1.0 for _ in self.gammas]
+        magnetic_rows = np.flatnonzero(ev.magnetic)
+        self._probe = magnetic_rows[:: max(1, len(magnetic_rows) // 64)]
         self._Gqt = None
         self._Wnext = np.zeros_like(st.s)
         self._state = st
@@ -266,8 +271,9 @@ class CollectivePRK(MolecularDynamics):
             self._lattice_step(h, want_energy)
             return 0, 0
         if self.frozen:
-            W, st.s, its = self._solve(st.s, st.Gq, st.Gq, self._predict(stage), h)
-            st.history[stage].append(W)
+            W, st.s, its = self._solve(st.s, st.Gq, self._predict(stage), h, stage,
+                                       frozen=True)
+            self._remember_midpoint(stage, W)
             return its, 0
         return self._coupled_step(h, stage, want_energy)
 
@@ -301,12 +307,11 @@ class CollectivePRK(MolecularDynamics):
                 self._check_displacement(q, qt, h)
             elif np.abs(qt - qt_used).max() <= qtol:
                 break
-            builds = ev.neighbors.builds
-            self._Gqt = ev.exchange_geometry(qt, out=self._Gqt)
-            if ev.neighbors.builds != builds:  # new pair list: G(q) must use it too
+            if ev.refresh(qt):  # a new pair list: G(q) must use it too
                 st.Gq = ev.exchange_geometry(q)
+            self._Gqt = ev.exchange_geometry(qt, out=self._Gqt, mean_with=st.Gq)
             geometries += 1
-            W, s_new, its = self._solve(s, st.Gq, self._Gqt, W, h)
+            W, s_new, its = self._solve(s, self._Gqt, W, h, stage)
             iterations += its
             qt_used = qt
         else:
@@ -316,7 +321,7 @@ class CollectivePRK(MolecularDynamics):
         self._lattice_at(qt, want_energy)
         F = self._exchange_forces(self._Gqt, W, st.FL)
         kernels.kick(P, 0.5 * h, self._md_forces(F, qt), P)
-        st.history[stage].append(W)
+        self._remember_midpoint(stage, W)
         st.q, st.p, st.s = qt, self._adjust_momenta(P, qt), s_new
         st.Gq, self._Gqt = self._Gqt, st.Gq
         return iterations, geometries
@@ -390,42 +395,53 @@ class CollectivePRK(MolecularDynamics):
 
     def _predict(self, stage):
         """Starting midpoint spins: extrapolated from the last steps' midpoints at
-        this stage, else s itself."""
-        history = self._state.history[stage]
+        this stage (by the polynomial order that did best last time), else s."""
+        st = self._state
+        history = st.history[stage]
         if not history:
-            return self._state.s.copy()
-        return kernels.extrapolate(history)
+            return st.s.copy()
+        return kernels.extrapolate(history, min(st.predictor_order[stage], len(history) - 1))
 
-    def _solve(self, s, Gq, Gqt, W, h):
-        """Midpoint spins W for couplings J̄ = ½[J(q) + J(q̃)]; (W, sweeps)."""
+    def _remember_midpoint(self, stage, W):
+        st = self._state
+        history = st.history[stage]
+        if history:
+            st.predictor_order[stage] = kernels.best_extrapolation_order(history, W,
+                                                                         self._probe)
+        history.append(W)
+
+    def _solve(self, s, geoms, W, h, stage, frozen=False):
+        """Midpoint spins for the couplings J̄ = ½[J(q) + J(q̃)] held in ``geoms``
+        (``Jbar``; ``J`` itself with a frozen lattice). Returns (W, s̃, sweeps)."""
         scale = h * self.sigma / self.hbar
         floor = 64.0 * self.tol
-        if len(Gq) == 1:
-            Jbar = np.add(Gq[0].J, Gqt[0].J)
-            Jbar *= 0.5
-            pairs = Gq[0].pairs
+        couplings = [g.J if frozen else g.Jbar for g in geoms]
+        if len(geoms) == 1:
+            pairs = geoms[0].pairs
             stilde = np.zeros_like(s)
-            its, delta, status, which = kernels.midpoint_solve(
-                nb.get_num_threads(), pairs.row, pairs.j, Jbar, s, W, self._Wnext, stilde,
-                scale, self.tol, floor, self.max_iter)
+            its, delta, status, which, theta = kernels.midpoint_solve(
+                nb.get_num_threads(), pairs.row, pairs.j, couplings[0], s, W, self._Wnext,
+                stilde, scale, self.tol, floor, self.max_iter,
+                min(1.0, 2.0 * self._state.theta[stage]))
+            self._state.theta[stage] = theta if theta < 1.0 else self._state.theta[stage]
             if which == 1:
                 W, self._Wnext = self._Wnext, W
         else:
-            W, stilde, its, delta, status = self._solve_terms(s, Gq, Gqt, W, scale, floor)
+            W, stilde, its, delta, status = self._solve_terms(s, geoms, couplings, W, scale,
+                                                              floor)
         if status == kernels.NOT_CONVERGED:
-            self._raise_not_converged(Gq, Gqt, W, its, delta, scale)
+            self._raise_not_converged(geoms, couplings, W, its, delta, scale)
         return W, stilde, its
 
-    def _solve_terms(self, s, Gq, Gqt, W, scale, floor):
+    def _solve_terms(self, s, geoms, couplings, W, scale, floor):
         """The same iteration for several spin terms (B̄ summed over terms)."""
-        ev = self.ev
+        mean = [ExchangeGeometry(g.pairs, J, g.G, None) for g, J in zip(geoms, couplings)]
         want = Want(magnetic_forces=True)
-        magnetic = ev.magnetic[:, None]
+        magnetic = self.ev.magnetic[:, None]
         previous = np.inf
         for it in range(1, self.max_iter + 1):
-            B = ev.spin(Gq, W, want).magnetic_forces
-            ev.spin(Gqt, W, want, magnetic_forces=B)
-            stilde = s + 0.5 * scale * np.cross(W, B)
+            B = self.ev.spin(mean, W, want).magnetic_forces
+            stilde = s + scale * np.cross(W, B)
             v = s + stilde
             norm = np.linalg.norm(v, axis=1)
             norm[norm == 0.0] = 1.0
@@ -441,12 +457,10 @@ class CollectivePRK(MolecularDynamics):
             previous = delta
         return W, stilde, self.max_iter, delta, kernels.NOT_CONVERGED
 
-    def _raise_not_converged(self, Gq, Gqt, W, its, delta, scale):
+    def _raise_not_converged(self, geoms, couplings, W, its, delta, scale):
         field = np.zeros(len(W))
-        for a, b in zip(Gq, Gqt):
-            i = a.pairs.i
-            field += np.bincount(i, weights=0.5 * (np.abs(a.J) + np.abs(b.J)),
-                                 minlength=len(W))
+        for g, J in zip(geoms, couplings):
+            field += np.bincount(g.pairs.i, weights=np.abs(J), minlength=len(W))
         x = abs(scale) * float(field.max()) if len(field) else 0.0
         raise SpinConvergenceError(
             f"the midpoint-spin iteration did not converge at step {self.nsteps}: "

@@ -12,7 +12,8 @@ CONVERGED, ROUNDOFF, NOT_CONVERGED = 0, 1, 2
 
 
 @nb.njit(cache=True, parallel=True)
-def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter):
+def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
+                   theta0):
     r"""Solve the spherical-midpoint equation for fixed pair couplings J̄_ij:
 
     .. math::
@@ -29,9 +30,14 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     on non-magnetic rows). ``stilde`` receives s̃ = s + c W × B̄ of the last
     sweep: the end point written as an increment, so its rounding errors are
     those of adding a small vector to s, unbiased, and |s̃| = |s| holds to
-    round-off without renormalising. Stops when max|ΔW| ≤ ``tol``, or when the change has
+    round-off without renormalising.
+
+    Stops when the distance to the solution, bounded by θ/(1−θ)·max|ΔW| with θ
+    the observed contraction per sweep (``theta0``, from earlier solves, until
+    two sweeps have been made), is at most ``tol``; or when the change has
     stopped falling below ``floor`` (round-off reached). Returns (iterations,
-    last max|ΔW|, status, index of the buffer holding the result: 0 = W, 1 = Wnext).
+    last max|ΔW|, status, index of the buffer holding the result: 0 = W,
+    1 = Wnext, contraction θ observed, or ``theta0`` if none was).
     """
     n = len(row) - 1
     bounds = balanced_chunks(row, nthreads)
@@ -40,6 +46,8 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     nxt = Wnext
     which = 0
     previous = np.inf
+    theta = theta0
+    measured = theta0
     for it in range(1, max_iter + 1):
         for t in nb.prange(nthreads):
             m = 0.0
@@ -83,13 +91,16 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
         cur, nxt = nxt, cur
         which = 1 - which
         if not delta <= 2.0:  # NaN: a non-finite field
-            return it, delta, NOT_CONVERGED, which
-        if delta <= tol:
-            return it, delta, CONVERGED, which
+            return it, delta, NOT_CONVERGED, which, measured
+        if it > 1 and delta > 1e3 * tol and delta < previous:
+            theta = delta / previous
+            measured = theta
+        if delta <= tol or (theta < 0.5 and delta * theta <= tol * (1.0 - theta)):
+            return it, delta, CONVERGED, which, measured
         if delta <= floor and delta >= previous:
-            return it, delta, ROUNDOFF, which
+            return it, delta, ROUNDOFF, which, measured
         previous = delta
-    return max_iter, delta, NOT_CONVERGED, which
+    return max_iter, delta, NOT_CONVERGED, which, measured
 
 
 @nb.njit(cache=True)
@@ -127,15 +138,34 @@ def kick(p, a, f, out):
         out[i, 2] = p[i, 2] + a * f[i, 2]
 
 
-def extrapolate(history):
-    """Predict the next midpoint spins from earlier ones at the same stage:
-    constant, linear or quadratic extrapolation, renormalised."""
-    if len(history) == 1:
-        return history[-1].copy()
-    if len(history) == 2:
-        w = 2.0 * history[-1] - history[-2]
-    else:
-        w = 3.0 * history[-1] - 3.0 * history[-2] + history[-3]
+# Polynomial extrapolation from the last k+1 values, newest first: order 0..3.
+_EXTRAPOLATION = (np.array([1.0]), np.array([2.0, -1.0]), np.array([3.0, -3.0, 1.0]),
+                  np.array([4.0, -6.0, 4.0, -1.0]))
+
+
+def extrapolate(history, order):
+    """Predict the next midpoint spins from earlier ones (``history``, oldest
+    first) by polynomial extrapolation of the given order, renormalised."""
+    c = _EXTRAPOLATION[order]
+    w = c[0] * history[-1]
+    for k in range(1, len(c)):
+        w += c[k] * history[-1 - k]
     norm = np.linalg.norm(w, axis=1)
     norm[norm == 0.0] = 1.0
-    return w / norm[:, None]
+    w /= norm[:, None]
+    return w
+
+
+def best_extrapolation_order(history, W, rows):
+    """The extrapolation order that would have predicted ``W`` best from
+    ``history`` (judged on a sample of ``rows``)."""
+    best, order = np.inf, 0
+    for k in range(min(len(history), len(_EXTRAPOLATION))):
+        c = _EXTRAPOLATION[k]
+        w = c[0] * history[-1][rows]
+        for m in range(1, len(c)):
+            w += c[m] * history[-1 - m][rows]
+        err = np.abs(w - W[rows]).max() if len(rows) else 0.0
+        if err < best:
+            best, order = err, k
+    return order

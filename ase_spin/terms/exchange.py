@@ -108,12 +108,17 @@ class ExchangeGeometry:
     ``G[k] = J'(r_ij) d_ij / r_ij`` with d_ij = r_j + S_ij − r_i; ``D`` holds
     d_ij when a virial is wanted. J = G = 0 beyond the cutoff. Spins do not enter:
     it stays valid while only the spins change.
+
+    ``Jbar`` (when asked for with ``mean_with``) is ½[J + J_other] with the J of
+    another geometry of the same pairs: the couplings of the collective
+    integrator's midpoint field, filled in the same pass over the pairs.
     """
 
-    __slots__ = ("pairs", "J", "G", "D")
+    __slots__ = ("pairs", "J", "G", "D", "Jbar")
 
     def __init__(self, pairs, J, G, D):
         self.pairs, self.J, self.G, self.D = pairs, J, G, D
+        self.Jbar = None
 
 
 class Exchange(Term):
@@ -192,10 +197,11 @@ class Exchange(Term):
     def energy_offset(self):
         return 1.0 if self.offset else 0.0
 
-    def geometry(self, positions, pairs, types, bound, virial=False, out=None):
+    def geometry(self, positions, pairs, types, bound, virial=False, out=None, mean_with=None):
         """:class:`ExchangeGeometry` of ``pairs`` at ``positions``.
 
         ``out``: a geometry of the same pair list whose arrays are overwritten.
+        ``mean_with``: a geometry of the same pairs; fills ``Jbar``.
         """
         table, couplings = bound
         n = len(pairs)
@@ -204,10 +210,19 @@ class Exchange(Term):
         else:
             geom = ExchangeGeometry(pairs, np.empty(n), np.empty((n, 3)),
                                     np.empty((n, 3)) if virial else None)
+        if mean_with is not None:
+            if mean_with.pairs is not pairs:
+                raise ValueError("mean_with must be a geometry of the same pair list")
+            if geom.Jbar is None or len(geom.Jbar) != n:
+                geom.Jbar = np.empty(n)
+            other, Jbar = mean_with.J, geom.Jbar
+        else:
+            geom.Jbar = None
+            other = Jbar = _NO_EX
         if couplings is None:
             D = geom.D if geom.D is not None else _NO_D
             _geometry_kernel(positions, pairs.row, pairs.j, pairs.image, pairs.images, types, table,
-                             geom.J, geom.G, D, geom.D is not None)
+                             geom.J, geom.G, D, geom.D is not None, other, Jbar)
             return geom
         i = pairs.i
         d = positions[pairs.j] + pairs.shift - positions[i]
@@ -222,6 +237,8 @@ class Exchange(Term):
         geom.G[:] = (dJ / np.where(r > 0.0, r, 1.0))[:, None] * d
         if geom.D is not None:
             geom.D[:] = d
+        if geom.Jbar is not None:
+            np.multiply(0.5, mean_with.J + J, out=geom.Jbar)
         return geom
 
     def compute(self, positions, half_pairs, full_pairs, types, bound, spins,
@@ -254,6 +271,7 @@ class Exchange(Term):
 
 
 _NO_D = np.zeros((0, 3))
+_NO_EX = np.zeros(0)
 
 
 @nb.njit(cache=True, inline="always")
@@ -279,9 +297,12 @@ def _coupling(table, ti, tj, r2):
 
 
 @nb.njit(cache=True, parallel=True)
-def _geometry_kernel(pos, row, nbr, image, images, types, table, J, G, D, want_d):
-    """J_k = J(r_ij), G_k = J'(r_ij) d_ij / r_ij (and D_k = d_ij) for every pair k."""
+def _geometry_kernel(pos, row, nbr, image, images, types, table, J, G, D, want_d,
+                     other, Jbar):
+    """J_k = J(r_ij), G_k = J'(r_ij) d_ij / r_ij (and D_k = d_ij) for every pair k;
+    with ``other`` given, also Jbar_k = ½(other_k + J_k)."""
     n = len(row) - 1
+    want_mean = other.shape[0] > 0
     for i in nb.prange(n):
         ti = types[i]
         for k in range(row[i], row[i + 1]):
@@ -293,16 +314,16 @@ def _geometry_kernel(pos, row, nbr, image, images, types, table, J, G, D, want_d
                 D[k, 1] = dy
                 D[k, 2] = dz
             if r2 > table[ti, tj, _RC2]:
-                J[k] = 0.0
-                G[k, 0] = 0.0
-                G[k, 1] = 0.0
-                G[k, 2] = 0.0
-                continue
-            Jk, g = _coupling(table, ti, tj, r2)
+                Jk = 0.0
+                g = 0.0
+            else:
+                Jk, g = _coupling(table, ti, tj, r2)
             J[k] = Jk
             G[k, 0] = g * dx
             G[k, 1] = g * dy
             G[k, 2] = g * dz
+            if want_mean:
+                Jbar[k] = 0.5 * (other[k] + Jk)
 
 
 @nb.njit(cache=True, parallel=True)
