@@ -50,6 +50,7 @@ class _State:
     """What the integrator holds between steps (design.md, "one step as data")."""
 
     __slots__ = ("q", "p", "s", "mu", "FL", "Gq", "EL", "EL_terms", "written",
+                 "carry_q", "carry_p", "carry_s",
                  "history", "predictor_order", "theta", "observables")
 
 
@@ -174,6 +175,9 @@ class CollectivePRK(MolecularDynamics):
         st.mu = mu
         st.EL = st.EL_terms = None
         st.observables = None
+        # rounding errors of the last updates (compensated summation)
+        st.carry_q, st.carry_p, st.carry_s = (np.zeros_like(st.q) for _ in range(3))
+        self._carry_mid = np.zeros_like(st.q)
         if not self.frozen:
             st.FL = ev.lattice(st.q, _FORCES).forces
         st.Gq = ev.exchange_geometry(st.q) if self.magnetic else None
@@ -246,6 +250,10 @@ class CollectivePRK(MolecularDynamics):
         self.geometry_evaluations = geometries
         self.total_iterations += iterations
         self.total_steps += 1
+        if atoms.constraints:  # positions and momenta set by constraints: no carries
+            st = self._state
+            for carry in (st.carry_q, st.carry_p, st.carry_s):
+                carry[:] = 0.0
         self._commit()
 
     def _commit(self):
@@ -273,6 +281,7 @@ class CollectivePRK(MolecularDynamics):
         if self.frozen:
             W, st.s, its = self._solve(st.s, st.Gq, self._predict(stage), h, stage,
                                        frozen=True)
+            st.carry_s = self._carry_s_new
             self._remember_midpoint(stage, W)
             return its, 0
         return self._coupled_step(h, stage, want_energy)
@@ -281,12 +290,14 @@ class CollectivePRK(MolecularDynamics):
         """Velocity Verlet (no spins to move)."""
         st = self._state
         P = np.empty_like(st.p)
-        kernels.kick(st.p, 0.5 * h, self._md_forces(st.FL, st.q), P)
+        kernels.kick(st.p, 0.5 * h, self._md_forces(st.FL, st.q), st.carry_p, P,
+                     self._carry_mid)
         qt, P = self._drift(st.q, P, h)
+        st.carry_q = self._carry_q_new
         self._check_displacement(st.q, qt, h)
         self._lattice_at(qt, want_energy)
         Ft = self._md_forces(st.FL, qt)
-        kernels.kick(P, 0.5 * h, Ft, P)
+        kernels.kick(P, 0.5 * h, Ft, self._carry_mid, P, st.carry_p)
         st.q = qt
         st.p = self._adjust_momenta(P, qt)
 
@@ -301,7 +312,7 @@ class CollectivePRK(MolecularDynamics):
         iterations = geometries = 0
         for _ in range(_MAX_OUTER):
             F = self._exchange_forces(st.Gq, W, st.FL)
-            kernels.kick(p, 0.5 * h, self._md_forces(F, q), P)
+            kernels.kick(p, 0.5 * h, self._md_forces(F, q), st.carry_p, P, self._carry_mid)
             qt, P = self._drift(q, P, h)
             if qt_used is None:
                 self._check_displacement(q, qt, h)
@@ -320,7 +331,9 @@ class CollectivePRK(MolecularDynamics):
                 f"outer iterations at step {self.nsteps}; reduce the timestep")
         self._lattice_at(qt, want_energy)
         F = self._exchange_forces(self._Gqt, W, st.FL)
-        kernels.kick(P, 0.5 * h, self._md_forces(F, qt), P)
+        kernels.kick(P, 0.5 * h, self._md_forces(F, qt), self._carry_mid, P, st.carry_p)
+        st.carry_q, self._carry_q_new = self._carry_q_new, st.carry_q
+        st.carry_s = self._carry_s_new
         self._remember_midpoint(stage, W)
         st.q, st.p, st.s = qt, self._adjust_momenta(P, qt), s_new
         st.Gq, self._Gqt = self._Gqt, st.Gq
@@ -360,9 +373,14 @@ class CollectivePRK(MolecularDynamics):
         """q̃ = q + h P/m, with constraints applied as VelocityVerlet does
         (RATTLE's first half: P is recomputed from the constrained q̃)."""
         qt = np.empty_like(q)
-        kernels.drift(q, P, self.masses[:, 0], h, qt)
+        st = self._state
+        self._carry_q_new = np.empty_like(q)
+        kernels.drift(q, P, self.masses[:, 0], h, st.carry_q, qt, self._carry_q_new)
         atoms = self.atoms
         if atoms.constraints:
+            # positions set by constraints: nothing to compensate
+            self._carry_q_new[:] = 0.0
+            st.carry_p[:] = 0.0
             atoms.arrays["positions"][:] = q
             for c in atoms.constraints:
                 c.adjust_positions(atoms, qt)
@@ -419,16 +437,19 @@ class CollectivePRK(MolecularDynamics):
         if len(geoms) == 1:
             pairs = geoms[0].pairs
             stilde = np.zeros_like(s)
+            self._carry_s_new = np.zeros_like(s)
             its, delta, status, which, theta = kernels.midpoint_solve(
                 nb.get_num_threads(), pairs.row, pairs.j, couplings[0], s, W, self._Wnext,
                 stilde, scale, self.tol, floor, self.max_iter,
-                min(1.0, 2.0 * self._state.theta[stage]))
+                min(1.0, 2.0 * self._state.theta[stage]), self._state.carry_s,
+                self._carry_s_new)
             self._state.theta[stage] = theta if theta < 1.0 else self._state.theta[stage]
             if which == 1:
                 W, self._Wnext = self._Wnext, W
         else:
             W, stilde, its, delta, status = self._solve_terms(s, geoms, couplings, W, scale,
                                                               floor)
+            self._carry_s_new = np.zeros_like(s)
         if status == kernels.NOT_CONVERGED:
             self._raise_not_converged(geoms, couplings, W, its, delta, scale)
         return W, stilde, its

@@ -13,7 +13,7 @@ CONVERGED, ROUNDOFF, NOT_CONVERGED = 0, 1, 2
 
 @nb.njit(cache=True, parallel=True)
 def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
-                   theta0):
+                   theta0, carry, carry_out):
     r"""Solve the spherical-midpoint equation for fixed pair couplings J̄_ij:
 
     .. math::
@@ -30,7 +30,9 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     on non-magnetic rows). ``stilde`` receives s̃ = s + c W × B̄ of the last
     sweep: the end point written as an increment, so its rounding errors are
     those of adding a small vector to s, unbiased, and |s̃| = |s| holds to
-    round-off without renormalising.
+    round-off without renormalising. The sum is compensated (Kahan): ``carry``
+    holds the rounding error of the previous step's s + δ, added back here, and
+    ``carry_out`` receives this one's.
 
     Stops when the distance to the solution, bounded by θ/(1−θ)·max|ΔW| with θ
     the observed contraction per sweep (``theta0``, from earlier solves, until
@@ -69,9 +71,15 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
                 wx = cur[i, 0]
                 wy = cur[i, 1]
                 wz = cur[i, 2]
-                tx = sx + scale * (wy * bz - wz * by)
-                ty = sy + scale * (wz * bx - wx * bz)
-                tz = sz + scale * (wx * by - wy * bx)
+                ax = scale * (wy * bz - wz * by) + carry[i, 0]
+                ay = scale * (wz * bx - wx * bz) + carry[i, 1]
+                az = scale * (wx * by - wy * bx) + carry[i, 2]
+                tx = sx + ax
+                ty = sy + ay
+                tz = sz + az
+                carry_out[i, 0] = ax - (tx - sx)
+                carry_out[i, 1] = ay - (ty - sy)
+                carry_out[i, 2] = az - (tz - sz)
                 stilde[i, 0] = tx
                 stilde[i, 1] = ty
                 stilde[i, 2] = tz
@@ -120,22 +128,28 @@ def max_displacement(a, b):
 
 
 @nb.njit(cache=True, parallel=True)
-def drift(q, p, m, h, out):
-    """out = q + h p / m (Störmer–Verlet's position update)."""
+def drift(q, p, m, h, carry, out, carry_out):
+    """out = q + h p / m (Störmer–Verlet's position update), compensated: the
+    rounding error of each sum is carried into the next (Kahan; Hairer, Lubich
+    & Wanner VIII.5), so round-off does not pile up over millions of tiny steps."""
     for i in nb.prange(q.shape[0]):
         f = h / m[i]
-        out[i, 0] = q[i, 0] + f * p[i, 0]
-        out[i, 1] = q[i, 1] + f * p[i, 1]
-        out[i, 2] = q[i, 2] + f * p[i, 2]
+        for c in range(3):
+            a = f * p[i, c] + carry[i, c]
+            t = q[i, c] + a
+            carry_out[i, c] = a - (t - q[i, c])
+            out[i, c] = t
 
 
 @nb.njit(cache=True, parallel=True)
-def kick(p, a, f, out):
-    """out = p + a f (a half kick: a = h/2)."""
+def kick(p, a, f, carry, out, carry_out):
+    """out = p + a f (a half kick: a = h/2), compensated as :func:`drift`."""
     for i in nb.prange(p.shape[0]):
-        out[i, 0] = p[i, 0] + a * f[i, 0]
-        out[i, 1] = p[i, 1] + a * f[i, 1]
-        out[i, 2] = p[i, 2] + a * f[i, 2]
+        for c in range(3):
+            y = a * f[i, c] + carry[i, c]
+            t = p[i, c] + y
+            carry_out[i, c] = y - (t - p[i, c])
+            out[i, c] = t
 
 
 # Polynomial extrapolation from the last k+1 values, newest first: order 0..3.

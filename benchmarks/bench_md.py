@@ -1,0 +1,80 @@
+"""Cost of one CollectivePRK step on the fcc Co scene, against one full evaluation.
+
+    python benchmarks/bench_md.py [--sizes 5 10 20] [--dt 0.1] [--order 2]
+
+For each 4n³-atom crystal (peers.md scene: 100 K, 30° spin cone, moment
+convention, dt in fs): µs per atom-step (median of repeats), midpoint sweeps and
+geometry evaluations per step, and the ratio to one full evaluation
+(`Evaluator.evaluate`: energy, forces, magnetic forces) and to one ASE
+calculator call (`get_potential_energy` + `get_forces` + magnetic forces).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+import numpy as np
+from ase import units
+
+sys.path.insert(0, os.path.dirname(__file__))
+
+import ase_spin  # noqa: E402
+from ase_spin import CollectivePRK, Want  # noqa: E402
+from ase_spin.scenes import fcc_cobalt  # noqa: E402
+from machine import describe  # noqa: E402
+
+
+def median_time(fn, repeats):
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--sizes", type=int, nargs="+", default=[5, 10, 20])
+    parser.add_argument("--dt", type=float, default=0.1)
+    parser.add_argument("--order", type=int, default=2)
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args(argv)
+    print(f"fcc Co, dt = {args.dt} fs, order {args.order}; µs per atom(-step), medians of "
+          f"{args.repeats}")
+    print(f"{'N':>8} {'step':>8} {'sweeps':>7} {'geoms':>6} {'full eval':>10} {'ratio':>6} "
+          f"{'ASE calc':>9} {'ratio':>6}")
+    for n in args.sizes:
+        atoms = fcc_cobalt(n)
+        N = len(atoms)
+        dyn = CollectivePRK(atoms, args.dt * units.fs, order=args.order)
+        dyn.run(5)
+        steps = max(5, int(2e5 / N))
+        before = (dyn.total_iterations, dyn.total_steps)
+        step = median_time(lambda: dyn.run(steps), args.repeats) / steps
+        sweeps = (dyn.total_iterations - before[0]) / (dyn.total_steps - before[1])
+        ev, _ = atoms.calc.bound_evaluator(atoms)
+        spins = ase_spin.get_spins(atoms)
+        want = Want(energy=True, forces=True, magnetic_forces=True)
+        ev.evaluate(atoms.positions, spins, want)
+        full = median_time(lambda: ev.evaluate(atoms.positions, spins, want), args.repeats)
+
+        def via_ase():
+            atoms.calc.results.clear()
+            atoms.get_potential_energy()
+            atoms.get_forces()
+            atoms.calc.get_magnetic_forces(atoms)
+
+        via_ase()
+        ase_time = median_time(via_ase, args.repeats)
+        us = 1e6 / N
+        print(f"{N:8d} {step * us:8.3f} {sweeps:7.2f} {dyn.geometry_evaluations:6d} "
+              f"{full * us:10.3f} {step / full:6.2f} {ase_time * us:9.3f} {step / ase_time:6.2f}")
+    print(describe())
+
+
+if __name__ == "__main__":
+    main()
