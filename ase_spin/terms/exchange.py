@@ -61,7 +61,8 @@ class BetheSlater(Coupling):
         if not (np.isfinite([J1, J2, J3]).all() and J3 > 0):
             raise ValueError(f"BetheSlater needs finite J1, J2 and J3 > 0, got {J1}, {J2}, {J3}")
         self.J1, self.J2, self.J3 = float(J1), float(J2), float(J3)
-        self._params = (self.J1, self.J2, self.J3)
+        # kernel parameters: J1, J2 and 1/J3² (a product per pair, not a division)
+        self._params = (self.J1, self.J2, 1.0 / self.J3**2)
 
     def values(self, r):
         x = (r / self.J3) ** 2
@@ -91,7 +92,7 @@ class Cubic(Coupling):
         if not (np.isfinite([J0, rc]).all() and rc > 0):
             raise ValueError(f"Cubic needs finite J0 and rc > 0, got {J0}, {rc}")
         self.J0, self.rc = float(J0), float(rc)
-        self._params = (self.J0, self.rc, 0.0)
+        self._params = (self.J0, self.rc, 1.0 / self.rc)
 
     def values(self, r):
         x = np.where(r < self.rc, 1.0 - r / self.rc, 0.0)
@@ -221,8 +222,15 @@ class Exchange(Term):
             other = Jbar = _NO_EX
         if couplings is None:
             D = geom.D if geom.D is not None else _NO_D
-            _geometry_kernel(positions, pairs.row, pairs.j, pairs.image, pairs.images, types, table,
-                             geom.J, geom.G, D, geom.D is not None, other, Jbar)
+            if table.shape[0] == 1:
+                # one species: parameters as scalars, no per-pair table lookups
+                _geometry_single(positions, pairs.row, pairs.j, pairs.image, pairs.images,
+                                 *table[0, 0], geom.J, geom.G, D, geom.D is not None, other,
+                                 Jbar)
+            else:
+                _geometry_kernel(positions, pairs.row, pairs.j, pairs.image, pairs.images,
+                                 types, table, geom.J, geom.G, D, geom.D is not None, other,
+                                 Jbar)
             return geom
         i = pairs.i
         d = positions[pairs.j] + pairs.shift - positions[i]
@@ -275,25 +283,28 @@ _NO_EX = np.zeros(0)
 
 
 @nb.njit(cache=True, inline="always")
-def _coupling(table, ti, tj, r2):
-    """J(r) and J'(r)/r of the compiled coupling forms (see BetheSlater, Cubic)."""
-    form = table[ti, tj, _FORM]
+def _coupling_form(form, p0, p1, p2, r2):
+    """J(r) and J'(r)/r of a compiled coupling form with parameters p0..p2:
+    Bethe–Slater (J1, J2, 1/J3²), cubic (J0, rc, 1/rc)."""
     if form == _BETHE_SLATER:
-        J1 = table[ti, tj, _P0]
-        J2 = table[ti, tj, _P1]
-        J3 = table[ti, tj, _P2]
-        x = r2 / (J3 * J3)
+        x = r2 * p2
         ex = np.exp(-x)
-        return (4.0 * J1 * x * (1.0 - J2 * x) * ex,
-                8.0 * J1 / (J3 * J3) * ex * (1.0 - x - J2 * x * (2.0 - x)))
+        return (4.0 * p0 * x * (1.0 - p1 * x) * ex,
+                8.0 * p0 * p2 * ex * (1.0 - x - p1 * x * (2.0 - x)))
     if form == _CUBIC:
-        rc = table[ti, tj, _P1]
         r = np.sqrt(r2)
-        if r >= rc:
+        if r >= p1:
             return 0.0, 0.0
-        y = 1.0 - r / rc
-        return table[ti, tj, _P0] * y * y * y, -3.0 * table[ti, tj, _P0] / rc * y * y / r
+        y = 1.0 - r * p2
+        return p0 * y * y * y, -3.0 * p0 * p2 * y * y / r
     return 0.0, 0.0
+
+
+@nb.njit(cache=True, inline="always")
+def _coupling(table, ti, tj, r2):
+    """J(r) and J'(r)/r for species ti, tj from the parameter table."""
+    return _coupling_form(table[ti, tj, _FORM], table[ti, tj, _P0], table[ti, tj, _P1],
+                          table[ti, tj, _P2], r2)
 
 
 @nb.njit(cache=True, parallel=True)
@@ -318,6 +329,32 @@ def _geometry_kernel(pos, row, nbr, image, images, types, table, J, G, D, want_d
                 g = 0.0
             else:
                 Jk, g = _coupling(table, ti, tj, r2)
+            J[k] = Jk
+            G[k, 0] = g * dx
+            G[k, 1] = g * dy
+            G[k, 2] = g * dz
+            if want_mean:
+                Jbar[k] = 0.5 * (other[k] + Jk)
+
+
+@nb.njit(cache=True, parallel=True)
+def _geometry_single(pos, row, nbr, image, images, rc2, form, p0, p1, p2, J, G, D, want_d,
+                     other, Jbar):
+    """:func:`_geometry_kernel` for one species (one coupling)."""
+    n = len(row) - 1
+    want_mean = other.shape[0] > 0
+    for i in nb.prange(n):
+        for k in range(row[i], row[i + 1]):
+            dx, dy, dz, r2 = separation(pos, images, i, nbr[k], image[k])
+            if want_d:
+                D[k, 0] = dx
+                D[k, 1] = dy
+                D[k, 2] = dz
+            if r2 > rc2:
+                Jk = 0.0
+                g = 0.0
+            else:
+                Jk, g = _coupling_form(form, p0, p1, p2, r2)
             J[k] = Jk
             G[k, 0] = g * dx
             G[k, 1] = g * dy
