@@ -173,11 +173,13 @@ class Evaluator:
             _check_finite(ev.forces, positions, self.neighbors, "forces")
         return ev
 
-    def exchange_geometry(self, positions, virial=False, out=None, mean_with=None):
+    def exchange_geometry(self, positions, virial=False, out=None, mean_with=None, half=False):
         """Pair geometry of every spin term at ``positions`` (a list, one per
         spin term); ``out`` is a previous result whose arrays are reused;
         ``mean_with`` a result on the same pair lists whose couplings are
-        averaged with these into each geometry's ``Jbar``."""
+        averaged with these into each geometry's ``Jbar``. ``half``: on the
+        half pair list (each pair once: half the work and memory; passes over it
+        scatter into per-thread buffers)."""
         positions = _as_positions(positions, self.natoms)
         self.refresh(positions)
         geoms = []
@@ -187,7 +189,7 @@ class Evaluator:
                 continue
             previous = out[k] if out is not None else None
             other = mean_with[k] if mean_with is not None else None
-            geoms.append(t.geometry(positions, self._pairs(t), self.types, table,
+            geoms.append(t.geometry(positions, self._pairs(t, half=half), self.types, table,
                                     virial=virial, out=previous, mean_with=other))
             k += 1
         return geoms

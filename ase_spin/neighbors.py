@@ -38,14 +38,15 @@ class PairList:
     list, and this cuts it from 32 to 6 bytes per pair.
     """
 
-    __slots__ = ("row", "j", "image", "images", "cutoff")
+    __slots__ = ("row", "j", "image", "images", "cutoff", "half")
 
-    def __init__(self, row, j, image, images, cutoff):
+    def __init__(self, row, j, image, images, cutoff, half=False):
         self.row = row
         self.j = j
         self.image = image
         self.images = images
         self.cutoff = cutoff
+        self.half = half  # each unordered pair once (else both i → j and j → i)
 
     def __len__(self):
         return len(self.j)
@@ -278,6 +279,7 @@ class NeighborCache:
                 np.ascontiguousarray(self.pairs.image[keep]),
                 self.pairs.images,
                 float(cutoff),
+                half,
             )
         self._sublists[key] = sub
         return sub

@@ -109,11 +109,16 @@ class CollectivePRK(MolecularDynamics):
 
     Attributes
     ----------
+    half_lists : bool
+        Keep the exchange pair geometry on the half pair list (each pair once,
+        per-thread buffers; the default) or on the full list (gather only).
     iterations : int
         Midpoint sweeps (over all spins) in the last step, all stages.
     geometry_evaluations : int
         Evaluations of the exchange pair geometry at q̃ in the last step.
     """
+
+    half_lists = True
 
     def __init__(self, atoms, timestep, *, hbar=None, precession="moment", order=2,
                  composition=None, tol=None, max_iter=None, lattice="moving",
@@ -180,7 +185,7 @@ class CollectivePRK(MolecularDynamics):
         self._carry_mid = np.zeros_like(st.q)
         if not self.frozen:
             st.FL = ev.lattice(st.q, _FORCES).forces
-        st.Gq = ev.exchange_geometry(st.q) if self.magnetic else None
+        st.Gq = ev.exchange_geometry(st.q, half=self.half_lists) if self.magnetic else None
         st.history = [deque(maxlen=4) for _ in self.gammas]
         st.predictor_order = [0 for _ in self.gammas]
         st.theta = [1.0 for _ in self.gammas]
@@ -319,8 +324,9 @@ class CollectivePRK(MolecularDynamics):
             elif np.abs(qt - qt_used).max() <= qtol:
                 break
             if ev.refresh(qt):  # a new pair list: G(q) must use it too
-                st.Gq = ev.exchange_geometry(q)
-            self._Gqt = ev.exchange_geometry(qt, out=self._Gqt, mean_with=st.Gq)
+                st.Gq = ev.exchange_geometry(q, half=self.half_lists)
+            self._Gqt = ev.exchange_geometry(qt, out=self._Gqt, mean_with=st.Gq,
+                                             half=self.half_lists)
             geometries += 1
             W, s_new, its = self._solve(s, self._Gqt, W, h, stage)
             iterations += its
@@ -438,7 +444,8 @@ class CollectivePRK(MolecularDynamics):
             pairs = geoms[0].pairs
             stilde = np.zeros_like(s)
             self._carry_s_new = np.zeros_like(s)
-            its, delta, status, which, theta = kernels.midpoint_solve(
+            solve = kernels.midpoint_solve_half if pairs.half else kernels.midpoint_solve
+            its, delta, status, which, theta = solve(
                 nb.get_num_threads(), pairs.row, pairs.j, couplings[0], s, W, self._Wnext,
                 stilde, scale, self.tol, floor, self.max_iter,
                 min(1.0, 2.0 * self._state.theta[stage]), self._state.carry_s,
@@ -482,6 +489,8 @@ class CollectivePRK(MolecularDynamics):
         field = np.zeros(len(W))
         for g, J in zip(geoms, couplings):
             field += np.bincount(g.pairs.i, weights=np.abs(J), minlength=len(W))
+            if g.pairs.half:
+                field += np.bincount(g.pairs.j, weights=np.abs(J), minlength=len(W))
         x = abs(scale) * float(field.max()) if len(field) else 0.0
         raise SpinConvergenceError(
             f"the midpoint-spin iteration did not converge at step {self.nsteps}: "

@@ -11,6 +11,55 @@ from ..neighbors import balanced_chunks
 CONVERGED, ROUNDOFF, NOT_CONVERGED = 0, 1, 2
 
 
+@nb.njit(cache=True, inline="always")
+def _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out):
+    """One spin's Jacobi update given its midpoint field B̄_i = (bx, by, bz):
+    s̃_i = s_i ⊕ c W_i × B̄_i (compensated), W_i ← (s_i + s̃_i)/|s_i + s̃_i|.
+    Returns max |ΔW_i| over components."""
+    sx = s[i, 0]
+    sy = s[i, 1]
+    sz = s[i, 2]
+    wx = cur[i, 0]
+    wy = cur[i, 1]
+    wz = cur[i, 2]
+    ax = scale * (wy * bz - wz * by) + carry[i, 0]
+    ay = scale * (wz * bx - wx * bz) + carry[i, 1]
+    az = scale * (wx * by - wy * bx) + carry[i, 2]
+    tx = sx + ax
+    ty = sy + ay
+    tz = sz + az
+    carry_out[i, 0] = ax - (tx - sx)
+    carry_out[i, 1] = ay - (ty - sy)
+    carry_out[i, 2] = az - (tz - sz)
+    stilde[i, 0] = tx
+    stilde[i, 1] = ty
+    stilde[i, 2] = tz
+    vx = sx + tx
+    vy = sy + ty
+    vz = sz + tz
+    inv = 1.0 / np.sqrt(vx * vx + vy * vy + vz * vz)
+    vx *= inv
+    vy *= inv
+    vz *= inv
+    nxt[i, 0] = vx
+    nxt[i, 1] = vy
+    nxt[i, 2] = vz
+    return max(abs(vx - wx), abs(vy - wy), abs(vz - wz))
+
+
+@nb.njit(cache=True, inline="always")
+def _stop(it, delta, previous, theta, tol, floor):
+    """Status after a sweep with change ``delta`` (see :func:`midpoint_solve`);
+    -1 to go on."""
+    if not delta <= 2.0:  # NaN: a non-finite field
+        return NOT_CONVERGED
+    if delta <= tol or (theta < 0.5 and delta * theta <= tol * (1.0 - theta)):
+        return CONVERGED
+    if delta <= floor and delta >= previous:
+        return ROUNDOFF
+    return -1
+
+
 @nb.njit(cache=True, parallel=True)
 def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
                    theta0, carry, carry_out):
@@ -50,14 +99,12 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     previous = np.inf
     theta = theta0
     measured = theta0
+    delta = 0.0
     for it in range(1, max_iter + 1):
         for t in nb.prange(nthreads):
             m = 0.0
             for i in range(bounds[t], bounds[t + 1]):
-                sx = s[i, 0]
-                sy = s[i, 1]
-                sz = s[i, 2]
-                if sx == 0.0 and sy == 0.0 and sz == 0.0:
+                if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
                     continue
                 bx = 0.0
                 by = 0.0
@@ -68,45 +115,90 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
                     bx += Jk * cur[j, 0]
                     by += Jk * cur[j, 1]
                     bz += Jk * cur[j, 2]
-                wx = cur[i, 0]
-                wy = cur[i, 1]
-                wz = cur[i, 2]
-                ax = scale * (wy * bz - wz * by) + carry[i, 0]
-                ay = scale * (wz * bx - wx * bz) + carry[i, 1]
-                az = scale * (wx * by - wy * bx) + carry[i, 2]
-                tx = sx + ax
-                ty = sy + ay
-                tz = sz + az
-                carry_out[i, 0] = ax - (tx - sx)
-                carry_out[i, 1] = ay - (ty - sy)
-                carry_out[i, 2] = az - (tz - sz)
-                stilde[i, 0] = tx
-                stilde[i, 1] = ty
-                stilde[i, 2] = tz
-                vx = sx + tx
-                vy = sy + ty
-                vz = sz + tz
-                inv = 1.0 / np.sqrt(vx * vx + vy * vy + vz * vz)
-                vx *= inv
-                vy *= inv
-                vz *= inv
-                nxt[i, 0] = vx
-                nxt[i, 1] = vy
-                nxt[i, 2] = vz
-                m = max(m, abs(vx - wx), abs(vy - wy), abs(vz - wz))
+                m = max(m, _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
+                                            carry_out))
             change[t] = m
         delta = change.max()
         cur, nxt = nxt, cur
         which = 1 - which
-        if not delta <= 2.0:  # NaN: a non-finite field
-            return it, delta, NOT_CONVERGED, which, measured
         if it > 1 and delta > 1e3 * tol and delta < previous:
             theta = delta / previous
             measured = theta
-        if delta <= tol or (theta < 0.5 and delta * theta <= tol * (1.0 - theta)):
-            return it, delta, CONVERGED, which, measured
-        if delta <= floor and delta >= previous:
-            return it, delta, ROUNDOFF, which, measured
+        status = _stop(it, delta, previous, theta, tol, floor)
+        if status >= 0:
+            return it, delta, status, which, measured
+        previous = delta
+    return max_iter, delta, NOT_CONVERGED, which, measured
+
+
+@nb.njit(cache=True, parallel=True)
+def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor,
+                        max_iter, theta0, carry, carry_out):
+    """:func:`midpoint_solve` over a half pair list (each pair once, half the
+    memory traffic): each sweep scatters J̄_ij W_j into row i and J̄_ij W_i into
+    row j of per-thread buffers, then updates every spin from their sum."""
+    n = len(row) - 1
+    bounds = balanced_chunks(row, nthreads)
+    atoms = np.empty(nthreads + 1, dtype=np.int64)
+    for t in range(nthreads + 1):
+        atoms[t] = (n * t) // nthreads
+    buf = np.zeros((nthreads, n, 3))
+    change = np.zeros(nthreads)
+    cur = W
+    nxt = Wnext
+    which = 0
+    previous = np.inf
+    theta = theta0
+    measured = theta0
+    delta = 0.0
+    for it in range(1, max_iter + 1):
+        for t in nb.prange(nthreads):
+            for i in range(bounds[t], bounds[t + 1]):
+                wx = cur[i, 0]
+                wy = cur[i, 1]
+                wz = cur[i, 2]
+                bx = 0.0
+                by = 0.0
+                bz = 0.0
+                for k in range(row[i], row[i + 1]):
+                    j = nbr[k]
+                    Jk = Jbar[k]
+                    bx += Jk * cur[j, 0]
+                    by += Jk * cur[j, 1]
+                    bz += Jk * cur[j, 2]
+                    buf[t, j, 0] += Jk * wx
+                    buf[t, j, 1] += Jk * wy
+                    buf[t, j, 2] += Jk * wz
+                buf[t, i, 0] += bx
+                buf[t, i, 1] += by
+                buf[t, i, 2] += bz
+        for t in nb.prange(nthreads):
+            m = 0.0
+            for i in range(atoms[t], atoms[t + 1]):
+                bx = 0.0
+                by = 0.0
+                bz = 0.0
+                for u in range(nthreads):
+                    bx += buf[u, i, 0]
+                    by += buf[u, i, 1]
+                    bz += buf[u, i, 2]
+                    buf[u, i, 0] = 0.0
+                    buf[u, i, 1] = 0.0
+                    buf[u, i, 2] = 0.0
+                if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+                    continue
+                m = max(m, _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
+                                            carry_out))
+            change[t] = m
+        delta = change.max()
+        cur, nxt = nxt, cur
+        which = 1 - which
+        if it > 1 and delta > 1e3 * tol and delta < previous:
+            theta = delta / previous
+            measured = theta
+        status = _stop(it, delta, previous, theta, tol, floor)
+        if status >= 0:
+            return it, delta, status, which, measured
         previous = delta
     return max_iter, delta, NOT_CONVERGED, which, measured
 

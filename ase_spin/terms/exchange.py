@@ -271,6 +271,14 @@ class Exchange(Term):
         """
         pairs = geom.pairs
         D = geom.D if geom.D is not None else _NO_D
+        kernel = _spin_pass_kernel
+        if pairs.half:
+            kernel = _spin_pass_half_kernel
+            out = kernel(nb.get_num_threads(), pairs.row, pairs.j, geom.J, geom.G, D, spins,
+                         self.energy_offset, magnetic_forces, forces, energies,
+                         want.magnetic_forces, want.forces, want.energy, want.energies,
+                         want.virial and D.shape[0] > 0)
+            return out[0], np.array(out[1:])
         out = _spin_pass_kernel(pairs.row, pairs.j, geom.J, geom.G, D, spins,
                                 self.energy_offset, magnetic_forces, forces, energies,
                                 want.magnetic_forces, want.forces, want.energy,
@@ -427,6 +435,97 @@ def _spin_pass_kernel(row, nbr, J, G, D, s, c, B, F, energies,
         if want_energy:
             e += ei
     return e, vxx, vyy, vzz, vyz, vxz, vxy
+
+
+@nb.njit(cache=True, parallel=True)
+def _spin_pass_half_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
+                           want_b, want_f, want_energy, want_energies, want_virial):
+    """:func:`_spin_pass_kernel` over a half list (each pair once), scattering
+    into per-thread buffers: B_i += J s_j, B_j += J s_i, F_i −= w G, F_j += w G,
+    e_i, e_j −= ½ J w, W −= w G ⊗ d."""
+    n = len(row) - 1
+    bounds = balanced_chunks(row, nthreads)
+    bbuf = np.zeros((nthreads, n if want_b else 0, 3))
+    fbuf = np.zeros((nthreads, n if want_f else 0, 3))
+    ebuf = np.zeros((nthreads, n if want_energies else 0, 1))
+    acc = np.zeros((nthreads, 7))
+    need_dot = want_f or want_energy or want_energies or want_virial
+    for t in nb.prange(nthreads):
+        e = 0.0
+        vxx = 0.0
+        vyy = 0.0
+        vzz = 0.0
+        vyz = 0.0
+        vxz = 0.0
+        vxy = 0.0
+        for i in range(bounds[t], bounds[t + 1]):
+            sx = s[i, 0]
+            sy = s[i, 1]
+            sz = s[i, 2]
+            bx = 0.0
+            by = 0.0
+            bz = 0.0
+            fx = 0.0
+            fy = 0.0
+            fz = 0.0
+            ei = 0.0
+            for k in range(row[i], row[i + 1]):
+                j = nbr[k]
+                Jk = J[k]
+                ux = s[j, 0]
+                uy = s[j, 1]
+                uz = s[j, 2]
+                if want_b:
+                    bx += Jk * ux
+                    by += Jk * uy
+                    bz += Jk * uz
+                    bbuf[t, j, 0] += Jk * sx
+                    bbuf[t, j, 1] += Jk * sy
+                    bbuf[t, j, 2] += Jk * sz
+                if need_dot:
+                    w = sx * ux + sy * uy + sz * uz - c
+                    ei -= Jk * w
+                    if want_energies:
+                        ebuf[t, j, 0] -= 0.5 * Jk * w
+                    gx = w * G[k, 0]
+                    gy = w * G[k, 1]
+                    gz = w * G[k, 2]
+                    if want_f:
+                        fx -= gx
+                        fy -= gy
+                        fz -= gz
+                        fbuf[t, j, 0] += gx
+                        fbuf[t, j, 1] += gy
+                        fbuf[t, j, 2] += gz
+                    if want_virial:
+                        vxx -= gx * D[k, 0]
+                        vyy -= gy * D[k, 1]
+                        vzz -= gz * D[k, 2]
+                        vyz -= gy * D[k, 2]
+                        vxz -= gx * D[k, 2]
+                        vxy -= gx * D[k, 1]
+            if want_b:
+                bbuf[t, i, 0] += bx
+                bbuf[t, i, 1] += by
+                bbuf[t, i, 2] += bz
+            if want_f:
+                fbuf[t, i, 0] += fx
+                fbuf[t, i, 1] += fy
+                fbuf[t, i, 2] += fz
+            if want_energies:
+                ebuf[t, i, 0] += 0.5 * ei
+            e += ei
+        acc[t, 0] = e
+        acc[t, 1] = vxx
+        acc[t, 2] = vyy
+        acc[t, 3] = vzz
+        acc[t, 4] = vyz
+        acc[t, 5] = vxz
+        acc[t, 6] = vxy
+    reduce_threads(fbuf, F)
+    reduce_threads(bbuf, B)
+    reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
+    return acc.sum(axis=0)
 
 
 @nb.njit(cache=True, parallel=True)
