@@ -284,8 +284,8 @@ class CollectivePRK(MolecularDynamics):
             self._lattice_step(h, want_energy)
             return 0, 0
         if self.frozen:
-            W, st.s, its = self._solve(st.s, st.Gq, self._predict(stage), h, stage,
-                                       frozen=True)
+            W, st.s, its, _ = self._solve(st.s, st.Gq, self._predict(stage), h, stage,
+                                          frozen=True)
             st.carry_s = self._carry_s_new
             self._remember_midpoint(stage, W)
             return its, 0
@@ -321,16 +321,19 @@ class CollectivePRK(MolecularDynamics):
             qt, P = self._drift(q, P, h)
             if qt_used is None:
                 self._check_displacement(q, qt, h)
-            elif np.abs(qt - qt_used).max() <= qtol:
+            elif kernels.max_abs_difference(qt, qt_used) <= qtol:
                 break
             if ev.refresh(qt):  # a new pair list: G(q) must use it too
                 st.Gq = ev.exchange_geometry(q, half=self.half_lists)
             self._Gqt = ev.exchange_geometry(qt, out=self._Gqt, mean_with=st.Gq,
                                              half=self.half_lists)
             geometries += 1
-            W, s_new, its = self._solve(s, self._Gqt, W, h, stage)
+            W, s_new, its, moved = self._solve(s, self._Gqt, W, h, stage)
             iterations += its
             qt_used = qt
+            if moved <= 8.0 * self.tol:
+                # W moved by round-off only: P and q̃ computed from it stand
+                break
         else:
             raise SpinConvergenceError(
                 f"positions q̃ and midpoint spins did not settle in {_MAX_OUTER} "
@@ -436,7 +439,8 @@ class CollectivePRK(MolecularDynamics):
 
     def _solve(self, s, geoms, W, h, stage, frozen=False):
         """Midpoint spins for the couplings J̄ = ½[J(q) + J(q̃)] held in ``geoms``
-        (``Jbar``; ``J`` itself with a frozen lattice). Returns (W, s̃, sweeps)."""
+        (``Jbar``; ``J`` itself with a frozen lattice). Returns (W, s̃, sweeps,
+        how far W moved from the starting guess)."""
         scale = h * self.sigma / self.hbar
         floor = 64.0 * self.tol
         couplings = [g.J if frozen else g.Jbar for g in geoms]
@@ -445,7 +449,7 @@ class CollectivePRK(MolecularDynamics):
             stilde = np.zeros_like(s)
             self._carry_s_new = np.zeros_like(s)
             solve = kernels.midpoint_solve_half if pairs.half else kernels.midpoint_solve
-            its, delta, status, which, theta = solve(
+            its, delta, status, which, theta, moved = solve(
                 nb.get_num_threads(), pairs.row, pairs.j, couplings[0], s, W, self._Wnext,
                 stilde, scale, self.tol, floor, self.max_iter,
                 min(1.0, 2.0 * self._state.theta[stage]), self._state.carry_s,
@@ -454,12 +458,14 @@ class CollectivePRK(MolecularDynamics):
             if which == 1:
                 W, self._Wnext = self._Wnext, W
         else:
+            W0 = W
             W, stilde, its, delta, status = self._solve_terms(s, geoms, couplings, W, scale,
                                                               floor)
+            moved = float(np.abs(W - W0).max()) if len(W) else 0.0
             self._carry_s_new = np.zeros_like(s)
         if status == kernels.NOT_CONVERGED:
             self._raise_not_converged(geoms, couplings, W, its, delta, scale)
-        return W, stilde, its
+        return W, stilde, its, moved
 
     def _solve_terms(self, s, geoms, couplings, W, scale, floor):
         """The same iteration for several spin terms (B̄ summed over terms)."""

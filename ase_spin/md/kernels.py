@@ -88,7 +88,8 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     two sweeps have been made), is at most ``tol``; or when the change has
     stopped falling below ``floor`` (round-off reached). Returns (iterations,
     last max|ΔW|, status, index of the buffer holding the result: 0 = W,
-    1 = Wnext, contraction θ observed, or ``theta0`` if none was).
+    1 = Wnext, contraction θ observed, or ``theta0`` if none was, max|ΔW| of the
+    first sweep: how far the starting guess was from the result).
     """
     n = len(row) - 1
     bounds = balanced_chunks(row, nthreads)
@@ -100,6 +101,7 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     theta = theta0
     measured = theta0
     delta = 0.0
+    first = 0.0
     for it in range(1, max_iter + 1):
         for t in nb.prange(nthreads):
             m = 0.0
@@ -124,11 +126,13 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
         if it > 1 and delta > 1e3 * tol and delta < previous:
             theta = delta / previous
             measured = theta
+        if it == 1:
+            first = delta
         status = _stop(it, delta, previous, theta, tol, floor)
         if status >= 0:
-            return it, delta, status, which, measured
+            return it, delta, status, which, measured, first
         previous = delta
-    return max_iter, delta, NOT_CONVERGED, which, measured
+    return max_iter, delta, NOT_CONVERGED, which, measured, first
 
 
 @nb.njit(cache=True, parallel=True)
@@ -151,6 +155,7 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
     theta = theta0
     measured = theta0
     delta = 0.0
+    first = 0.0
     for it in range(1, max_iter + 1):
         for t in nb.prange(nthreads):
             for i in range(bounds[t], bounds[t + 1]):
@@ -196,11 +201,13 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
         if it > 1 and delta > 1e3 * tol and delta < previous:
             theta = delta / previous
             measured = theta
+        if it == 1:
+            first = delta
         status = _stop(it, delta, previous, theta, tol, floor)
         if status >= 0:
-            return it, delta, status, which, measured
+            return it, delta, status, which, measured, first
         previous = delta
-    return max_iter, delta, NOT_CONVERGED, which, measured
+    return max_iter, delta, NOT_CONVERGED, which, measured, first
 
 
 @nb.njit(cache=True)
@@ -252,14 +259,54 @@ _EXTRAPOLATION = (np.array([1.0]), np.array([2.0, -1.0]), np.array([3.0, -3.0, 1
 def extrapolate(history, order):
     """Predict the next midpoint spins from earlier ones (``history``, oldest
     first) by polynomial extrapolation of the given order, renormalised."""
-    c = _EXTRAPOLATION[order]
-    w = c[0] * history[-1]
-    for k in range(1, len(c)):
-        w += c[k] * history[-1 - k]
-    norm = np.linalg.norm(w, axis=1)
-    norm[norm == 0.0] = 1.0
-    w /= norm[:, None]
-    return w
+    out = np.empty_like(history[-1])
+    h0 = history[-1]
+    h1 = history[-2] if order >= 1 else h0
+    h2 = history[-3] if order >= 2 else h0
+    h3 = history[-4] if order >= 3 else h0
+    _extrapolate(_EXTRAPOLATION[order], h0, h1, h2, h3, out)
+    return out
+
+
+@nb.njit(cache=True, parallel=True)
+def _extrapolate(c, h0, h1, h2, h3, out):
+    m = len(c)
+    for i in nb.prange(h0.shape[0]):
+        x = c[0] * h0[i, 0]
+        y = c[0] * h0[i, 1]
+        z = c[0] * h0[i, 2]
+        if m > 1:
+            x += c[1] * h1[i, 0]
+            y += c[1] * h1[i, 1]
+            z += c[1] * h1[i, 2]
+        if m > 2:
+            x += c[2] * h2[i, 0]
+            y += c[2] * h2[i, 1]
+            z += c[2] * h2[i, 2]
+        if m > 3:
+            x += c[3] * h3[i, 0]
+            y += c[3] * h3[i, 1]
+            z += c[3] * h3[i, 2]
+        norm = np.sqrt(x * x + y * y + z * z)
+        if norm > 0.0:
+            x /= norm
+            y /= norm
+            z /= norm
+        out[i, 0] = x
+        out[i, 1] = y
+        out[i, 2] = z
+
+
+@nb.njit(cache=True)
+def max_abs_difference(a, b):
+    """max |a − b| over all elements."""
+    worst = 0.0
+    for i in range(a.shape[0]):
+        for c in range(a.shape[1]):
+            d = abs(a[i, c] - b[i, c])
+            if not d <= worst:
+                worst = d
+    return worst
 
 
 def best_extrapolation_order(history, W, rows):
