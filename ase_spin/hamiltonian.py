@@ -14,11 +14,13 @@ only the spins change.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .neighbors import NeighborCache
+from .threads import threads_for
 from .terms.base import Species, Term
 
 __all__ = ["Hamiltonian", "Evaluator", "Want", "Evaluation", "AtomsTooCloseError"]
@@ -99,6 +101,18 @@ def _symbols(numbers):
     return [str(s) for s in numbers]
 
 
+def _sized(method):
+    """Run the kernels of an Evaluator method threaded, or serially for a small
+    system (see ase_spin.threads)."""
+
+    @functools.wraps(method)
+    def run(self, *args, **kwargs):
+        with threads_for(self.natoms):
+            return method(self, *args, **kwargs)
+
+    return run
+
+
 class Evaluator:
     """A :class:`Hamiltonian` bound to one system.
 
@@ -152,6 +166,7 @@ class Evaluator:
         return abs(np.linalg.det(self.cell))
 
     # -- the fast interface -------------------------------------------------
+    @_sized
     def lattice(self, positions, want, forces=None, energies=None):
         """Spin-independent terms at ``positions``.
 
@@ -173,6 +188,7 @@ class Evaluator:
             _check_finite(ev.forces, positions, self.neighbors, "forces")
         return ev
 
+    @_sized
     def exchange_geometry(self, positions, virial=False, out=None, mean_with=None, half=False):
         """Pair geometry of every spin term at ``positions`` (a list, one per
         spin term); ``out`` is a previous result whose arrays are reused;
@@ -194,6 +210,7 @@ class Evaluator:
             k += 1
         return geoms
 
+    @_sized
     def spin(self, geometries, spins, want, magnetic_forces=None, forces=None,
              energies=None):
         """Spin-dependent terms for unit ``spins`` from cached ``geometries``.
@@ -215,6 +232,7 @@ class Evaluator:
             _accumulate(ev, name, e, w, want)
         return ev
 
+    @_sized
     def evaluate(self, positions, spins, want):
         """Everything ``want`` asks for, lattice and spin parts together."""
         positions = _as_positions(positions, self.natoms)

@@ -25,6 +25,8 @@ import numba as nb
 import numpy as np
 import vesin
 
+from .threads import serial_twin
+
 __all__ = ["PairList", "NeighborCache"]
 
 
@@ -177,6 +179,9 @@ def reduce_threads(buf, out):
         for t in range(buf.shape[0]):
             for c in range(buf.shape[2]):
                 out[i, c] += buf[t, i, c]
+
+
+reduce_threads_serial = serial_twin(reduce_threads)
 
 
 class NeighborCache:

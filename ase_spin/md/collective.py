@@ -9,12 +9,12 @@ from __future__ import annotations
 
 from collections import deque
 
-import numba as nb
 import numpy as np
 from ase import units
 from ase.constraints import FixAtoms
 from ase.md.md import MolecularDynamics
 
+from .. import threads
 from ..calculator import SpinLatticeCalculator
 from ..hamiltonian import Want
 from ..spins import split_moments
@@ -233,6 +233,10 @@ class CollectivePRK(MolecularDynamics):
     # -- the step ---------------------------------------------------------------
     def step(self):
         """Advance by one time step (all composition stages)."""
+        with threads.threads_for(len(self.atoms)):
+            self._step()
+
+    def _step(self):
         st = self._sync()
         atoms = self.atoms
         constrained = bool(atoms.constraints)
@@ -450,7 +454,7 @@ class CollectivePRK(MolecularDynamics):
             self._carry_s_new = np.zeros_like(s)
             solve = kernels.midpoint_solve_half if pairs.half else kernels.midpoint_solve
             its, delta, status, which, theta, moved = solve(
-                nb.get_num_threads(), pairs.row, pairs.j, couplings[0], s, W, self._Wnext,
+                threads.count(), pairs.row, pairs.j, couplings[0], s, W, self._Wnext,
                 stilde, scale, self.tol, floor, self.max_iter,
                 min(1.0, 2.0 * self._state.theta[stage]), self._state.carry_s,
                 self._carry_s_new)
@@ -510,6 +514,10 @@ class CollectivePRK(MolecularDynamics):
         st = self._sync()
         if st.observables is not None:
             return st.observables
+        with threads.threads_for(len(self.atoms)):
+            return self._compute_observables(st)
+
+    def _compute_observables(self, st):
         ev = self.ev
         terms = {}
         if st.EL_terms is None:

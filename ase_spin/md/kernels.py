@@ -6,6 +6,7 @@ import numba as nb
 import numpy as np
 
 from ..neighbors import balanced_chunks
+from ..threads import threaded
 
 # Exit status of :func:`midpoint_solve`.
 CONVERGED, ROUNDOFF, NOT_CONVERGED = 0, 1, 2
@@ -60,7 +61,7 @@ def _stop(it, delta, previous, theta, tol, floor):
     return -1
 
 
-@nb.njit(cache=True, parallel=True)
+@threaded()
 def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
                    theta0, carry, carry_out):
     r"""Solve the spherical-midpoint equation for fixed pair couplings J̄_ij:
@@ -135,7 +136,7 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     return max_iter, delta, NOT_CONVERGED, which, measured, first
 
 
-@nb.njit(cache=True, parallel=True)
+@threaded()
 def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor,
                         max_iter, theta0, carry, carry_out):
     """:func:`midpoint_solve` over a half pair list (each pair once, half the
@@ -226,7 +227,7 @@ def max_displacement(a, b):
     return np.sqrt(worst), at
 
 
-@nb.njit(cache=True, parallel=True)
+@threaded()
 def drift(q, p, m, h, carry, out, carry_out):
     """out = q + h p / m (Störmer–Verlet's position update), compensated: the
     rounding error of each sum is carried into the next (Kahan; Hairer, Lubich
@@ -240,7 +241,7 @@ def drift(q, p, m, h, carry, out, carry_out):
             out[i, c] = t
 
 
-@nb.njit(cache=True, parallel=True)
+@threaded()
 def kick(p, a, f, carry, out, carry_out):
     """out = p + a f (a half kick: a = h/2), compensated as :func:`drift`."""
     for i in nb.prange(p.shape[0]):
@@ -268,7 +269,7 @@ def extrapolate(history, order):
     return out
 
 
-@nb.njit(cache=True, parallel=True)
+@threaded()
 def _extrapolate(c, h0, h1, h2, h3, out):
     m = len(c)
     for i in nb.prange(h0.shape[0]):

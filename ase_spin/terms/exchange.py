@@ -5,7 +5,9 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..neighbors import balanced_chunks, reduce_threads, separation
+from .. import threads
+from ..neighbors import balanced_chunks, reduce_threads, reduce_threads_serial, separation
+from ..threads import threaded
 from .base import Term, is_pair_mapping, resolve_pairs
 
 __all__ = ["Coupling", "BetheSlater", "Cubic", "Exchange", "ExchangeGeometry"]
@@ -257,7 +259,7 @@ class Exchange(Term):
         if couplings is not None:
             geom = self.geometry(positions, full_pairs, types, bound, virial=want.virial)
             return self.spin_pass(geom, spins, magnetic_forces, forces, energies, want)
-        out = _direct_kernel(nb.get_num_threads(), positions, half_pairs.row, half_pairs.j,
+        out = _direct_kernel(threads.count(), positions, half_pairs.row, half_pairs.j,
                              half_pairs.image, half_pairs.images, types, table, spins,
                              self.energy_offset, magnetic_forces, forces, energies,
                              want.magnetic_forces, want.forces, want.energy, want.energies,
@@ -274,7 +276,7 @@ class Exchange(Term):
         kernel = _spin_pass_kernel
         if pairs.half:
             kernel = _spin_pass_half_kernel
-            out = kernel(nb.get_num_threads(), pairs.row, pairs.j, geom.J, geom.G, D, spins,
+            out = kernel(threads.count(), pairs.row, pairs.j, geom.J, geom.G, D, spins,
                          self.energy_offset, magnetic_forces, forces, energies,
                          want.magnetic_forces, want.forces, want.energy, want.energies,
                          want.virial and D.shape[0] > 0)
@@ -315,7 +317,7 @@ def _coupling(table, ti, tj, r2):
                           table[ti, tj, _P2], r2)
 
 
-@nb.njit(cache=True, parallel=True)
+@threaded()
 def _geometry_kernel(pos, row, nbr, image, images, types, table, J, G, D, want_d,
                      other, Jbar):
     """J_k = J(r_ij), G_k = J'(r_ij) d_ij / r_ij (and D_k = d_ij) for every pair k;
@@ -345,7 +347,7 @@ def _geometry_kernel(pos, row, nbr, image, images, types, table, J, G, D, want_d
                 Jbar[k] = 0.5 * (other[k] + Jk)
 
 
-@nb.njit(cache=True, parallel=True)
+@threaded()
 def _geometry_single(pos, row, nbr, image, images, rc2, form, p0, p1, p2, J, G, D, want_d,
                      other, Jbar):
     """:func:`_geometry_kernel` for one species (one coupling)."""
@@ -371,7 +373,7 @@ def _geometry_single(pos, row, nbr, image, images, rc2, form, p0, p1, p2, J, G, 
                 Jbar[k] = 0.5 * (other[k] + Jk)
 
 
-@nb.njit(cache=True, parallel=True)
+@threaded()
 def _spin_pass_kernel(row, nbr, J, G, D, s, c, B, F, energies,
                       want_b, want_f, want_energy, want_energies, want_virial):
     """One pass over the exchange pairs for spins s (full list, gather into i):
@@ -437,7 +439,7 @@ def _spin_pass_kernel(row, nbr, J, G, D, s, c, B, F, energies,
     return e, vxx, vyy, vzz, vyz, vxz, vxy
 
 
-@nb.njit(cache=True, parallel=True)
+@threaded(reduce_threads=lambda: reduce_threads_serial)
 def _spin_pass_half_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
                            want_b, want_f, want_energy, want_energies, want_virial):
     """:func:`_spin_pass_kernel` over a half list (each pair once), scattering
@@ -528,7 +530,7 @@ def _spin_pass_half_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
     return acc.sum(axis=0)
 
 
-@nb.njit(cache=True, parallel=True)
+@threaded(reduce_threads=lambda: reduce_threads_serial)
 def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B, F, energies,
                    want_b, want_f, want_energy, want_energies, want_virial):
     """One evaluation from positions over a half pair list (each pair once,

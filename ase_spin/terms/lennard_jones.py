@@ -5,7 +5,9 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..neighbors import balanced_chunks, reduce_threads, separation
+from .. import threads
+from ..neighbors import balanced_chunks, reduce_threads, reduce_threads_serial, separation
+from ..threads import threaded
 from .base import Term, is_pair_mapping, resolve_pairs
 
 __all__ = ["LennardJones"]
@@ -105,7 +107,7 @@ class LennardJones(Term):
         ``want`` is a :class:`~ase_spin.hamiltonian.Want`. Returns (energy, virial
         in Voigt order xx yy zz yz xz xy, eV).
         """
-        out = _lj_kernel(nb.get_num_threads(), positions, pairs.row, pairs.j, pairs.image,
+        out = _lj_kernel(threads.count(), positions, pairs.row, pairs.j, pairs.image,
                          pairs.images, types, table, forces, energies, want.forces,
                          want.energy, want.energies, want.virial)
         return out[0], out[1:]
@@ -135,7 +137,7 @@ def _lj_pair(r2, table, ti, tj):
     return u, du_r
 
 
-@nb.njit(cache=True, parallel=True)
+@threaded(reduce_threads=lambda: reduce_threads_serial)
 def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, energies,
                want_forces, want_energy, want_energies, want_virial):
     """Over a half pair list (each pair once), d_ij = r_j + S_ij − r_i:
