@@ -34,6 +34,13 @@ _FORCES = Want(forces=True)
 _MAX_OUTER = 12
 
 
+_NONE = np.zeros(0)
+
+
+def _same(a, b):
+    return a.shape == b.shape and a.dtype == b.dtype and kernels.same(a, b)
+
+
 class IntegrationError(RuntimeError):
     """A step could not be taken; the Atoms keep the state before it."""
 
@@ -205,8 +212,8 @@ class CollectivePRK(MolecularDynamics):
 
     def _remember_written(self):
         a = self.atoms
-        self._written = (a.arrays["positions"].copy(), a.get_momenta(),
-                         a.arrays.get("initial_magmoms", np.zeros(0)).copy(),
+        self._written = (a.arrays["positions"].copy(), a.arrays.get("momenta", _NONE).copy(),
+                         a.arrays.get("initial_magmoms", _NONE).copy(),
                          a.cell.array.copy(), a.pbc.copy(), a.numbers.copy(),
                          [id(c) for c in a.constraints], id(a.calc))
 
@@ -217,10 +224,11 @@ class CollectivePRK(MolecularDynamics):
             return False
         a = self.atoms
         pos, mom, mag, cell, pbc, numbers, cons, calc = self._written
+        arrays = a.arrays
         return (id(a.calc) == calc and len(a) == len(numbers)
-                and np.array_equal(a.arrays["positions"], pos)
-                and np.array_equal(a.arrays.get("momenta", np.zeros_like(pos)), mom)
-                and np.array_equal(a.arrays.get("initial_magmoms", np.zeros(0)), mag)
+                and _same(arrays["positions"], pos)
+                and _same(arrays.get("momenta", _NONE), mom)
+                and _same(arrays.get("initial_magmoms", _NONE), mag)
                 and np.array_equal(a.cell.array, cell) and np.array_equal(a.pbc, pbc)
                 and np.array_equal(a.numbers, numbers)
                 and [id(c) for c in a.constraints] == cons)

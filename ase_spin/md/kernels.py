@@ -313,13 +313,43 @@ def max_abs_difference(a, b):
 def best_extrapolation_order(history, W, rows):
     """The extrapolation order that would have predicted ``W`` best from
     ``history`` (judged on a sample of ``rows``)."""
-    best, order = np.inf, 0
-    for k in range(min(len(history), len(_EXTRAPOLATION))):
-        c = _EXTRAPOLATION[k]
-        w = c[0] * history[-1][rows]
-        for m in range(1, len(c)):
-            w += c[m] * history[-1 - m][rows]
-        err = np.abs(w - W[rows]).max() if len(rows) else 0.0
+    n = min(len(history), len(_EXTRAPOLATION))
+    h0 = history[-1]
+    return _best_order(n, h0, history[-2] if n > 1 else h0, history[-3] if n > 2 else h0,
+                       history[-4] if n > 3 else h0, W, rows)
+
+
+@nb.njit(cache=True)
+def _best_order(n, h0, h1, h2, h3, W, rows):
+    best = np.inf
+    order = 0
+    for k in range(n):
+        err = 0.0
+        for r in rows:
+            for c in range(3):
+                if k == 0:
+                    w = h0[r, c]
+                elif k == 1:
+                    w = 2.0 * h0[r, c] - h1[r, c]
+                elif k == 2:
+                    w = 3.0 * h0[r, c] - 3.0 * h1[r, c] + h2[r, c]
+                else:
+                    w = 4.0 * h0[r, c] - 6.0 * h1[r, c] + 4.0 * h2[r, c] - h3[r, c]
+                err = max(err, abs(w - W[r, c]))
         if err < best:
-            best, order = err, k
+            best = err
+            order = k
     return order
+
+
+@nb.njit(cache=True)
+def same(a, b):
+    """a and b hold the same values (arrays of equal shape, any dimension)."""
+    x = a.ravel()
+    y = b.ravel()
+    if x.shape[0] != y.shape[0]:
+        return False
+    for i in range(x.shape[0]):
+        if x[i] != y[i]:
+            return False
+    return True
