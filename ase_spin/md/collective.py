@@ -103,7 +103,9 @@ class CollectivePRK(MolecularDynamics):
         (see :data:`~ase_spin.md.compositions.COMPOSITIONS`).
     tol : float
         Stop the midpoint iteration when no spin component changes by more than
-        this (default 1e-15, round-off for unit vectors).
+        this (default 1e-15, round-off for unit vectors). Spin lengths do not
+        depend on it: the end point is the reflection of s about the converged
+        midpoint (see :func:`~ase_spin.md.kernels.midpoint_solve`).
     max_iter : int
         Midpoint iterations allowed per solve (default 100). Not converging
         raises :class:`SpinConvergenceError`; the atoms keep the last good state.

@@ -14,9 +14,19 @@ CONVERGED, ROUNDOFF, NOT_CONVERGED = 0, 1, 2
 
 @nb.njit(cache=True, inline="always")
 def _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out):
-    """One spin's Jacobi update given its midpoint field B̄_i = (bx, by, bz):
-    s̃_i = s_i ⊕ c W_i × B̄_i (compensated), W_i ← (s_i + s̃_i)/|s_i + s̃_i|.
-    Returns max |ΔW_i| over components."""
+    """One spin's Jacobi update given its midpoint field B̄_i = (bx, by, bz).
+
+    With a = c W_i × B̄_i (plus the carried rounding error) and v = 2 s_i + a
+    (= s_i + s̃_i), the next iterate is W_i = v/|v| and the end point is
+
+        s̃_i = s_i + a − κ v,   κ = (2 s_i·a + |a|²)/|v|²,
+
+    the reflection of s_i about v: equal to s_i + a at the solution (κ = 0),
+    and |s̃_i| = |s_i| to round-off whatever residual the iteration stops with
+    (κ, the length error a residual would cause, is computed from the increment
+    a, without cancellation). The sum s_i + (a − κ v) is compensated.
+    Returns max |ΔW_i| over components.
+    """
     sx = s[i, 0]
     sy = s[i, 1]
     sz = s[i, 2]
@@ -26,6 +36,14 @@ def _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out
     ax = scale * (wy * bz - wz * by) + carry[i, 0]
     ay = scale * (wz * bx - wx * bz) + carry[i, 1]
     az = scale * (wx * by - wy * bx) + carry[i, 2]
+    vx = 2.0 * sx + ax
+    vy = 2.0 * sy + ay
+    vz = 2.0 * sz + az
+    vv = vx * vx + vy * vy + vz * vz
+    kappa = (2.0 * (sx * ax + sy * ay + sz * az) + (ax * ax + ay * ay + az * az)) / vv
+    ax -= kappa * vx
+    ay -= kappa * vy
+    az -= kappa * vz
     tx = sx + ax
     ty = sy + ay
     tz = sz + az
@@ -35,10 +53,7 @@ def _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out
     stilde[i, 0] = tx
     stilde[i, 1] = ty
     stilde[i, 2] = tz
-    vx = sx + tx
-    vy = sy + ty
-    vz = sz + tz
-    inv = 1.0 / np.sqrt(vx * vx + vy * vy + vz * vz)
+    inv = 1.0 / np.sqrt(vv)
     vx *= inv
     vy *= inv
     vz *= inv
@@ -77,12 +92,12 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     Rows with s_i = 0 (non-magnetic atoms) are skipped.
 
     ``W`` holds the starting guess; ``Wnext`` is a buffer of the same shape (zero
-    on non-magnetic rows). ``stilde`` receives s̃ = s + c W × B̄ of the last
-    sweep: the end point written as an increment, so its rounding errors are
-    those of adding a small vector to s, unbiased, and |s̃| = |s| holds to
-    round-off without renormalising. The sum is compensated (Kahan): ``carry``
-    holds the rounding error of the previous step's s + δ, added back here, and
-    ``carry_out`` receives this one's.
+    on non-magnetic rows). ``stilde`` receives the end point of the last sweep,
+    s + c W × B̄ written as the reflection of s about the midpoint direction (see
+    :func:`_midpoint_update`): |s̃| = |s| to round-off, never renormalised. The
+    sum is compensated (Kahan): ``carry`` holds the rounding error of the
+    previous step's update, added back here, and ``carry_out`` receives this
+    one's.
 
     Stops when the distance to the solution, bounded by θ/(1−θ)·max|ΔW| with θ
     the observed contraction per sweep (``theta0``, from earlier solves, until
