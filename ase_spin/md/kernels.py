@@ -16,34 +16,40 @@ CONVERGED, ROUNDOFF, NOT_CONVERGED = 0, 1, 2
 def _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out):
     """One spin's Jacobi update given its midpoint field B̄_i = (bx, by, bz).
 
-    With a = c W_i × B̄_i (plus the carried rounding error) and v = 2 s_i + a
-    (= s_i + s̃_i), the next iterate is W_i = v/|v| and the end point is
+    With d = c W_i × B̄_i and v = 2 s_i + d (= s_i + s̃_i), the next iterate is
+    W_i = v/|v| and the end point is
 
-        s̃_i = s_i + a − κ v,   κ = (2 s_i·a + |a|²)/|v|²,
+        s̃_i = s_i + d − κ v,   κ = (2 s_i·d + |d|²)/|v|²,
 
-    the reflection of s_i about v: equal to s_i + a at the solution (κ = 0),
+    the reflection of s_i about v: equal to s_i + d at the solution (κ = 0),
     and |s̃_i| = |s_i| to round-off whatever residual the iteration stops with
     (κ, the length error a residual would cause, is computed from the increment
-    a, without cancellation). The sum s_i + (a − κ v) is compensated.
+    d, without cancellation). s_i is the stored spin plus the rounding error
+    carried from the last step, and the sum is compensated (Kahan).
     Returns max |ΔW_i| over components.
     """
     sx = s[i, 0]
     sy = s[i, 1]
     sz = s[i, 2]
+    cx = carry[i, 0]
+    cy = carry[i, 1]
+    cz = carry[i, 2]
     wx = cur[i, 0]
     wy = cur[i, 1]
     wz = cur[i, 2]
-    ax = scale * (wy * bz - wz * by) + carry[i, 0]
-    ay = scale * (wz * bx - wx * bz) + carry[i, 1]
-    az = scale * (wx * by - wy * bx) + carry[i, 2]
-    vx = 2.0 * sx + ax
-    vy = 2.0 * sy + ay
-    vz = 2.0 * sz + az
+    dx = scale * (wy * bz - wz * by)
+    dy = scale * (wz * bx - wx * bz)
+    dz = scale * (wx * by - wy * bx)
+    vx = 2.0 * (sx + cx) + dx
+    vy = 2.0 * (sy + cy) + dy
+    vz = 2.0 * (sz + cz) + dz
     vv = vx * vx + vy * vy + vz * vz
-    kappa = (2.0 * (sx * ax + sy * ay + sz * az) + (ax * ax + ay * ay + az * az)) / vv
-    ax -= kappa * vx
-    ay -= kappa * vy
-    az -= kappa * vz
+    # the spin is s + carry (the carried rounding error): keep its length
+    kappa = (2.0 * ((sx * dx + sy * dy + sz * dz) + (cx * dx + cy * dy + cz * dz))
+             + (dx * dx + dy * dy + dz * dz)) / vv
+    ax = cx + (dx - kappa * vx)
+    ay = cy + (dy - kappa * vy)
+    az = cz + (dz - kappa * vz)
     tx = sx + ax
     ty = sy + ay
     tz = sz + az
