@@ -3,7 +3,7 @@
 from .calculator import SpinLatticeCalculator
 from .hamiltonian import AtomsTooCloseError, Evaluator, Hamiltonian, Want
 from .md import (HBAR, CollectivePRK, IntegrationError, SpinConvergenceError, SpinMDLogger,
-                 UnstableStepError)
+                 SuzukiTrotter, UnstableStepError)
 from .spins import get_moments, get_spins, set_spins
 from .terms import BetheSlater, Coupling, Cubic, Exchange, LennardJones, Term
 
@@ -13,6 +13,6 @@ __all__ = [
     "SpinLatticeCalculator", "Hamiltonian", "Evaluator", "Want", "AtomsTooCloseError",
     "set_spins", "get_spins", "get_moments",
     "CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError",
-    "SpinMDLogger", "HBAR",
+    "SpinMDLogger", "SuzukiTrotter", "HBAR",
     "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic",
 ]

@@ -4,5 +4,6 @@ from .collective import (HBAR, CollectivePRK, IntegrationError, SpinConvergenceE
                          UnstableStepError)
 from .compositions import COMPOSITIONS
 from .logger import SpinMDLogger
+from .splitting import SuzukiTrotter
 
-__all__ = ["CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError", "SpinMDLogger", "HBAR", "COMPOSITIONS"]
+__all__ = ["CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError", "SpinMDLogger", "SuzukiTrotter", "HBAR", "COMPOSITIONS"]

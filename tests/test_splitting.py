@@ -1,0 +1,81 @@
+"""SuzukiTrotter, the LAMMPS-style splitting baseline: convergence, invariants."""
+
+import numpy as np
+import pytest
+from ase import units
+
+import ase_spin
+from ase_spin import SuzukiTrotter
+from ase_spin.md.ode import reference_solution
+from ase_spin.scenes import fcc_cobalt, paper_chain
+
+from test_md import fitted_order, state, state_error
+
+
+@pytest.fixture(scope="module")
+def chain_reference():
+    return reference_solution(paper_chain(), 1.0, hbar=1.0, precession="spin")
+
+
+@pytest.mark.parametrize("rotation", ["cayley", "exact"])
+@pytest.mark.parametrize("order, exponents", [(2, (4, 5, 6, 7)), (4, (4, 5, 6))])
+def test_chain_converges_to_ode_solution(chain_reference, rotation, order, exponents):
+    """On the paper's chain (cubic J, which LAMMPS has no pair style for)."""
+    hs, errors = [], []
+    for e in exponents:
+        atoms = paper_chain()
+        SuzukiTrotter(atoms, 2.0**-e, hbar=1.0, precession="spin", rotation=rotation,
+                      order=order).run(2**e)
+        hs.append(2.0**-e)
+        errors.append(state_error(state(atoms), chain_reference))
+    assert errors[-1] > 1e-12
+    assert abs(fitted_order(hs, errors) - order) < 0.15, errors
+
+
+@pytest.mark.parametrize("precession", ["moment", "spin"])
+def test_fcc_converges_to_ode_solution(precession):
+    t_end = 20 * units.fs
+    ref = reference_solution(fcc_cobalt(2, temperature_K=300), t_end, hbar=ase_spin.HBAR,
+                             precession=precession)
+    hs, errors = [], []
+    for n in (20, 40, 80):
+        atoms = fcc_cobalt(2, temperature_K=300)
+        SuzukiTrotter(atoms, t_end / n, precession=precession).run(n)
+        hs.append(t_end / n)
+        errors.append(state_error(state(atoms), ref))
+    assert abs(fitted_order(hs, errors) - 2) < 0.2, errors
+
+
+def test_more_accurate_per_step_than_one_midpoint_rotation():
+    """peers.md: four rotations by h/4 per step make the splitting's spin error
+    at equal h well below the collective method's (about 10x on this scene)."""
+    t_end = 20 * units.fs
+    ref = reference_solution(fcc_cobalt(2), t_end, hbar=ase_spin.HBAR)
+    a, b = fcc_cobalt(2), fcc_cobalt(2)
+    SuzukiTrotter(a, 0.5 * units.fs).run(40)
+    ase_spin.CollectivePRK(b, 0.5 * units.fs).run(40)
+    err_split = np.abs(ase_spin.get_spins(a) - ref[2]).max()
+    err_collective = np.abs(ase_spin.get_spins(b) - ref[2]).max()
+    assert 3 < err_collective / err_split < 30
+
+
+def test_time_reversible_and_lengths():
+    atoms = fcc_cobalt(2, temperature_K=500)
+    start = state(atoms)
+    dyn = SuzukiTrotter(atoms, 1.0 * units.fs, rotation="exact")
+    dyn.run(30)
+    assert state_error(state(atoms), start) > 1e-3
+    s = ase_spin.get_spins(atoms)
+    dyn.dt = -dyn.dt
+    dyn.run(30)
+    assert state_error(state(atoms), start) < 1e-11
+    assert np.abs(np.linalg.norm(dyn._state.s, axis=1) - 1).max() < 1e-14
+
+
+def test_frozen_lattice_and_bad_rotation():
+    atoms = fcc_cobalt(2)
+    x0 = atoms.positions.copy()
+    SuzukiTrotter(atoms, 1.0 * units.fs, lattice="frozen").run(5)
+    assert np.array_equal(atoms.positions, x0)
+    with pytest.raises(ValueError, match="rotation"):
+        SuzukiTrotter(atoms, 1.0, rotation="euler")
