@@ -133,6 +133,41 @@ def measure(scene, methods, repeats, quick):
     return rows
 
 
+def time_at_error(rows, label, target, column=3):
+    """Wall time ``label`` needs for spin (column 3) or position (4) RMS error
+    ``target``, by log-log interpolation between its measured points; None
+    outside their range."""
+    pts = sorted((r[column], r[2]) for r in rows if r[0] == label)
+    for (e0, t0), (e1, t1) in zip(pts, pts[1:]):
+        if e0 <= target <= e1 and e0 > 0:
+            f = np.log(target / e0) / np.log(e1 / e0) if e1 != e0 else 0.0
+            return float(np.exp(np.log(t0) + f * np.log(t1 / t0)))
+    return None
+
+
+def equal_error_table(rows, reference="LAMMPS fix nve/spin"):
+    """Lines comparing, at each error the reference code reached, the fastest
+    ase_spin method's wall time with the reference's."""
+    labels = [label for label in dict.fromkeys(r[0] for r in rows) if label != reference]
+    lines = []
+    for target in (1e-2, 3e-3, 1e-3, 3e-4, 1e-4, 1e-5, 1e-6):
+        t_ref = time_at_error(rows, reference, target)
+        times = {label: time_at_error(rows, label, target) for label in labels}
+        times = {k: v for k, v in times.items() if v is not None}
+        if not times:
+            continue
+        best = min(times, key=times.get)
+        ref = f"{t_ref:8.2f} s" if t_ref is not None else "   (n/a)"
+        ratio = f"{times[best] / t_ref:5.2f}" if t_ref is not None else "  -  "
+        collective = {k: v for k, v in times.items() if k.startswith("CollectivePRK")}
+        cbest = min(collective, key=collective.get) if collective else None
+        ctext = (f"{cbest} {collective[cbest]:.2f} s" + (
+            f" ({collective[cbest] / t_ref:.2f})" if t_ref else "")) if cbest else "-"
+        lines.append(f"spin RMS {target:7.0e}: {reference} {ref} | fastest ase_spin: {best} "
+                     f"{times[best]:.2f} s, ratio {ratio} | best CollectivePRK: {ctext}")
+    return lines
+
+
 def plot(results, out):
     try:
         import matplotlib
@@ -181,6 +216,12 @@ def main(argv=None):
         for scene, rows in results.items():
             for label, dt, wall, es, ex, it in rows:
                 f.write(f"{scene}\t{label}\t{dt:.6g}\t{wall:.5f}\t{es:.4e}\t{ex:.4e}\t{it:.2f}\n")
+        for scene, rows in results.items():
+            if any(r[0].startswith("LAMMPS") for r in rows):
+                f.write(f"# {scene}: wall time at equal spin RMS error (interpolated)\n")
+                for line in equal_error_table(rows):
+                    f.write("# " + line + "\n")
+                    print(line)
     plot(results, out)
     print(f"wrote {out}/work_precision.txt and .png")
 
