@@ -150,7 +150,7 @@ def equal_error_table(rows, reference="LAMMPS fix nve/spin"):
     ase_spin method's wall time with the reference's."""
     labels = [label for label in dict.fromkeys(r[0] for r in rows) if label != reference]
     lines = []
-    for target in (1e-2, 3e-3, 1e-3, 3e-4, 1e-4, 1e-5, 1e-6):
+    for target in (1e-2, 3e-3, 1e-3, 3e-4, 1e-4, 1e-5, 1.1e-6):
         t_ref = time_at_error(rows, reference, target)
         times = {label: time_at_error(rows, label, target) for label in labels}
         times = {k: v for k, v in times.items() if v is not None}
