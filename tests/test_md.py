@@ -423,3 +423,38 @@ def test_bad_arguments():
     atoms.calc = None
     with pytest.raises(TypeError, match="SpinLatticeCalculator"):
         CollectivePRK(atoms, 1.0).run(1)
+
+
+@pytest.mark.parametrize("case", ["hot", "paramagnet", "compressed", "head-on"])
+def test_stress_cases_run_cleanly(case):
+    """Short versions of benchmarks/stress.py: each ends finite, energy kept."""
+    atoms = fcc_cobalt(2, temperature_K=2000 if case == "hot" else 100)
+    if case == "paramagnet":
+        ase_spin.set_spins(atoms, ase_spin.scenes.cone(len(atoms), np.random.default_rng(2),
+                                                       180.0), magnitudes=1.72)
+    if case == "compressed":
+        atoms.set_cell(atoms.cell * 0.85, scale_atoms=True)
+    if case == "head-on":
+        momenta = np.zeros((len(atoms), 3))
+        d = atoms.positions[1] - atoms.positions[0]
+        d /= np.linalg.norm(d)
+        p = np.sqrt(atoms.get_masses()[0] * 100.0)  # 100 eV of relative kinetic energy
+        momenta[0], momenta[1] = p * d, -p * d
+        atoms.set_momenta(momenta)
+    dyn = CollectivePRK(atoms, 0.5 * units.fs)
+    e0, ekin0 = dyn.get_total_energy(), dyn.get_kinetic_energy()
+    dyn.run(200)
+    assert np.isfinite(atoms.positions).all() and np.isfinite(atoms.get_momenta()).all()
+    # the 100 eV collision is stiff for 0.5 fs: 0.18 eV error here, 0.2 % of its energy
+    assert abs(dyn.get_total_energy() - e0) < max(1e-3 * len(atoms), 5e-3 * ekin0)
+    assert np.abs(np.linalg.norm(dyn._state.s, axis=1) - 1).max() < 1e-14
+
+
+def test_step_too_large_for_the_spin_iteration_is_named():
+    """Past h|B|/ħ ≈ 1.5 (3 fs on fcc Co) the midpoint iteration cannot converge:
+    the error says so at the first step and the atoms are untouched."""
+    atoms = fcc_cobalt(2)
+    before = state(atoms)
+    with pytest.raises(SpinConvergenceError, match="Reduce the timestep"):
+        CollectivePRK(atoms, 3.0 * units.fs).run(5)
+    assert state_error(state(atoms), before) == 0.0
