@@ -46,10 +46,13 @@ print()
 dyn = CollectivePRK(atoms, timestep=0.1 * units.fs, trajectory="demo.traj",
                     logfile="-", loginterval=50)
 t0 = time.perf_counter()
-dyn.run(500)
-elapsed = time.perf_counter() - t0
-print(f"\n500 steps (50 fs) in {elapsed:.2f} s: {elapsed / 500 / len(atoms) * 1e6:.2f} µs per "
-      f"atom-step, {dyn.mean_iterations:.1f} midpoint sweeps per step")
+dyn.run(50)  # the first call also compiles the kernels (cached on disk afterwards)
+t1 = time.perf_counter()
+dyn.run(450)
+elapsed = time.perf_counter() - t1
+print(f"\n500 steps (50 fs): the first 50 in {t1 - t0:.2f} s (with compilation), the next 450 "
+      f"in {elapsed:.2f} s: {elapsed / 450 / len(atoms) * 1e6:.2f} µs per atom-step, "
+      f"{dyn.mean_iterations:.1f} midpoint sweeps per step")
 
 spins = ase_spin.get_spins(atoms)
 print(f"spin lengths          max | |s| − 1 | = {np.abs(np.linalg.norm(spins, axis=1) - 1).max():.1e}")
