@@ -71,7 +71,11 @@ class SuzukiTrotter(CollectivePRK):
             self._spin_half_step(st.Gq[0], h)
             return 0, 0
         ev = self.ev
-        F = self._exchange_forces(st.Gq, st.s, st.FL)
+        cached = getattr(self, "_end_forces", None)
+        if cached is not None and cached[0] is st:
+            F = cached[1]  # F(q, s) from the end of the last (sub)step
+        else:
+            F = self._exchange_forces(st.Gq, st.s, st.FL)
         P = np.empty_like(st.p)
         kernels.kick(st.p, 0.5 * h, self._md_forces(F, st.q), st.carry_p, P, self._carry_mid)
         self._spin_half_step(st.Gq[0], h)
@@ -84,6 +88,7 @@ class SuzukiTrotter(CollectivePRK):
         F = self._exchange_forces(st.Gq, st.s, st.FL)
         kernels.kick(P, 0.5 * h, self._md_forces(F, qt), self._carry_mid, P, st.carry_p)
         st.q, st.p = qt, self._adjust_momenta(P, qt)
+        self._end_forces = (st, F)
         return 0, 1
 
     def _spin_half_step(self, geom, h):
