@@ -66,8 +66,9 @@ def serial_twin(dispatcher, **replace):
 class _Threaded:
     """A kernel callable from Python that runs its threaded or serial twin."""
 
-    def __init__(self, fn, replace):
+    def __init__(self, fn, replace, always):
         self.parallel = nb.njit(cache=True, parallel=True)(fn)
+        self.always = always
         self._replace = replace
         self._serial = None
         self.__doc__ = fn.__doc__
@@ -82,15 +83,24 @@ class _Threaded:
         return self._serial
 
     def __call__(self, *args):
-        return (self.serial if _mode.serial else self.parallel)(*args)
+        return (self.serial if _mode.serial and not self.always else self.parallel)(*args)
 
 
-def threaded(**replace):
+def threaded(always=False, **replace):
     """Decorator for a kernel called from Python: ``@threaded()``, or
     ``@threaded(reduce_threads=lambda: reduce_threads_serial)`` when it calls
-    another threaded function that its serial twin must not."""
+    another threaded function that its serial twin must not. ``always=True``
+    for kernels with enough work per call to gain from threads even in a small
+    system (pair potentials and exp() over every pair: measured at N = 500,
+    Lennard-Jones 89 against 200 µs, exchange geometry 86 against 139 µs);
+    such kernels take their thread count from :func:`all_threads`."""
 
     def wrap(fn):
-        return _Threaded(fn, replace)
+        return _Threaded(fn, replace, always)
 
     return wrap
+
+
+def all_threads():
+    """numba's thread count, whatever the system size."""
+    return nb.get_num_threads()

@@ -259,7 +259,7 @@ class Exchange(Term):
         if couplings is not None:
             geom = self.geometry(positions, full_pairs, types, bound, virial=want.virial)
             return self.spin_pass(geom, spins, magnetic_forces, forces, energies, want)
-        out = _direct_kernel(threads.count(), positions, half_pairs.row, half_pairs.j,
+        out = _direct_kernel(threads.all_threads(), positions, half_pairs.row, half_pairs.j,
                              half_pairs.image, half_pairs.images, types, table, spins,
                              self.energy_offset, magnetic_forces, forces, energies,
                              want.magnetic_forces, want.forces, want.energy, want.energies,
@@ -317,7 +317,7 @@ def _coupling(table, ti, tj, r2):
                           table[ti, tj, _P2], r2)
 
 
-@threaded()
+@threaded(always=True)
 def _geometry_kernel(pos, row, nbr, image, images, types, table, J, G, D, want_d,
                      other, Jbar):
     """J_k = J(r_ij), G_k = J'(r_ij) d_ij / r_ij (and D_k = d_ij) for every pair k;
@@ -347,7 +347,7 @@ def _geometry_kernel(pos, row, nbr, image, images, types, table, J, G, D, want_d
                 Jbar[k] = 0.5 * (other[k] + Jk)
 
 
-@threaded()
+@threaded(always=True)
 def _geometry_single(pos, row, nbr, image, images, rc2, form, p0, p1, p2, J, G, D, want_d,
                      other, Jbar):
     """:func:`_geometry_kernel` for one species (one coupling)."""
@@ -530,7 +530,7 @@ def _spin_pass_half_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
     return acc.sum(axis=0)
 
 
-@threaded(reduce_threads=lambda: reduce_threads_serial)
+@threaded(always=True, reduce_threads=lambda: reduce_threads_serial)
 def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B, F, energies,
                    want_b, want_f, want_energy, want_energies, want_virial):
     """One evaluation from positions over a half pair list (each pair once,

@@ -107,7 +107,7 @@ class LennardJones(Term):
         ``want`` is a :class:`~ase_spin.hamiltonian.Want`. Returns (energy, virial
         in Voigt order xx yy zz yz xz xy, eV).
         """
-        out = _lj_kernel(threads.count(), positions, pairs.row, pairs.j, pairs.image,
+        out = _lj_kernel(threads.all_threads(), positions, pairs.row, pairs.j, pairs.image,
                          pairs.images, types, table, forces, energies, want.forces,
                          want.energy, want.energies, want.virial)
         return out[0], out[1:]
@@ -137,7 +137,7 @@ def _lj_pair(r2, table, ti, tj):
     return u, du_r
 
 
-@threaded(reduce_threads=lambda: reduce_threads_serial)
+@threaded(always=True, reduce_threads=lambda: reduce_threads_serial)
 def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, energies,
                want_forces, want_energy, want_energies, want_virial):
     """Over a half pair list (each pair once), d_ij = r_j + S_ij − r_i:
