@@ -65,16 +65,19 @@ class PairList:
 
 
 @nb.njit(cache=True)
-def _max_displacement_sq(positions, reference):
+def max_displacement(positions, reference):
+    """(largest |r_a − r_ref,a|, that atom's index); NaN if any distance is NaN."""
     worst = 0.0
+    at = 0
     for a in range(positions.shape[0]):
         dx = positions[a, 0] - reference[a, 0]
         dy = positions[a, 1] - reference[a, 1]
         dz = positions[a, 2] - reference[a, 2]
         d2 = dx * dx + dy * dy + dz * dz
-        if d2 > worst:
+        if not d2 <= worst:
             worst = d2
-    return worst
+            at = a
+    return np.sqrt(worst), at
 
 
 def _rows(i, n):
@@ -220,7 +223,7 @@ class NeighborCache:
             return True
         if not np.array_equal(cell, self._cell) or not np.array_equal(pbc, self._pbc):
             return True
-        return _max_displacement_sq(positions, self._reference) > (0.5 * self.skin) ** 2
+        return max_displacement(positions, self._reference)[0] > 0.5 * self.skin
 
     def update(self, positions, cell, pbc):
         """Make the list valid for ``positions``; return True if it was rebuilt."""

@@ -17,6 +17,7 @@ from ase.md.md import MolecularDynamics
 from .. import threads
 from ..calculator import SpinLatticeCalculator
 from ..hamiltonian import Want
+from ..neighbors import max_displacement
 from ..spins import split_moments
 from ..terms.exchange import ExchangeGeometry
 from . import kernels
@@ -383,7 +384,7 @@ class CollectivePRK(MolecularDynamics):
         lattice integration has blown up (a Störmer–Verlet step moves atoms by
         ~1e-3 Å at ordinary temperatures and timesteps)."""
         limit = 0.5 * self.ev.neighbors.skin
-        moved, atom = kernels.max_displacement(q, qt) if len(q) else (0.0, 0)
+        moved, atom = max_displacement(q, qt)
         if not moved <= limit:
             raise UnstableStepError(
                 f"atom {atom} moved {moved:.3g} Å in one step (at most half the "

@@ -70,16 +70,21 @@ def _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out
 
 
 @nb.njit(cache=True, inline="always")
-def _stop(it, delta, previous, theta, tol, floor):
-    """Status after a sweep with change ``delta`` (see :func:`midpoint_solve`);
-    -1 to go on."""
+def _after_sweep(it, delta, previous, theta, measured, first, tol, floor):
+    """Bookkeeping after sweep ``it`` with change ``delta`` (see :func:`midpoint_solve`):
+    (status, or -1 to go on; contraction θ in use; θ measured; change of the first sweep)."""
+    if it > 1 and delta > 1e3 * tol and delta < previous:
+        theta = delta / previous
+        measured = theta
+    if it == 1:
+        first = delta
     if not delta <= 2.0:  # NaN: a non-finite field
-        return NOT_CONVERGED
+        return NOT_CONVERGED, theta, measured, first
     if delta <= tol or (theta < 0.5 and delta * theta <= tol * (1.0 - theta)):
-        return CONVERGED
+        return CONVERGED, theta, measured, first
     if delta <= floor and delta >= previous:
-        return ROUNDOFF
-    return -1
+        return ROUNDOFF, theta, measured, first
+    return -1, theta, measured, first
 
 
 @threaded()
@@ -145,12 +150,8 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
         delta = change.max()
         cur, nxt = nxt, cur
         which = 1 - which
-        if it > 1 and delta > 1e3 * tol and delta < previous:
-            theta = delta / previous
-            measured = theta
-        if it == 1:
-            first = delta
-        status = _stop(it, delta, previous, theta, tol, floor)
+        status, theta, measured, first = _after_sweep(it, delta, previous, theta, measured,
+                                                      first, tol, floor)
         if status >= 0:
             return it, delta, status, which, measured, first
         previous = delta
@@ -220,32 +221,12 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
         delta = change.max()
         cur, nxt = nxt, cur
         which = 1 - which
-        if it > 1 and delta > 1e3 * tol and delta < previous:
-            theta = delta / previous
-            measured = theta
-        if it == 1:
-            first = delta
-        status = _stop(it, delta, previous, theta, tol, floor)
+        status, theta, measured, first = _after_sweep(it, delta, previous, theta, measured,
+                                                      first, tol, floor)
         if status >= 0:
             return it, delta, status, which, measured, first
         previous = delta
     return max_iter, delta, NOT_CONVERGED, which, measured, first
-
-
-@nb.njit(cache=True)
-def max_displacement(a, b):
-    """(largest |a_i − b_i|, its atom index)."""
-    worst = 0.0
-    at = 0
-    for i in range(a.shape[0]):
-        dx = a[i, 0] - b[i, 0]
-        dy = a[i, 1] - b[i, 1]
-        dz = a[i, 2] - b[i, 2]
-        d2 = dx * dx + dy * dy + dz * dz
-        if not d2 <= worst:
-            worst = d2
-            at = i
-    return np.sqrt(worst), at
 
 
 @threaded()
@@ -273,42 +254,39 @@ def kick(p, a, f, carry, out, carry_out):
             out[i, c] = t
 
 
-# Polynomial extrapolation from the last k+1 values, newest first: order 0..3.
-_EXTRAPOLATION = (np.array([1.0]), np.array([2.0, -1.0]), np.array([3.0, -3.0, 1.0]),
-                  np.array([4.0, -6.0, 4.0, -1.0]))
+# Polynomial extrapolation from the last k+1 values, newest first: row k is order k.
+_EXTRAPOLATION = np.array([[1.0, 0.0, 0.0, 0.0],
+                           [2.0, -1.0, 0.0, 0.0],
+                           [3.0, -3.0, 1.0, 0.0],
+                           [4.0, -6.0, 4.0, -1.0]])
+
+
+def _last_four(history):
+    """The last four midpoints, newest first (the newest repeated where history
+    is shorter: those entries get coefficient 0)."""
+    h0 = history[-1]
+    return tuple(history[-1 - k] if len(history) > k else h0 for k in range(4))
 
 
 def extrapolate(history, order):
     """Predict the next midpoint spins from earlier ones (``history``, oldest
     first) by polynomial extrapolation of the given order, renormalised."""
     out = np.empty_like(history[-1])
-    h0 = history[-1]
-    h1 = history[-2] if order >= 1 else h0
-    h2 = history[-3] if order >= 2 else h0
-    h3 = history[-4] if order >= 3 else h0
-    _extrapolate(_EXTRAPOLATION[order], h0, h1, h2, h3, out)
+    _extrapolate(_EXTRAPOLATION[order], *_last_four(history), out)
     return out
+
+
+@nb.njit(cache=True, inline="always")
+def _extrapolated(c, h0, h1, h2, h3, i, k):
+    return c[0] * h0[i, k] + c[1] * h1[i, k] + c[2] * h2[i, k] + c[3] * h3[i, k]
 
 
 @threaded()
 def _extrapolate(c, h0, h1, h2, h3, out):
-    m = len(c)
     for i in nb.prange(h0.shape[0]):
-        x = c[0] * h0[i, 0]
-        y = c[0] * h0[i, 1]
-        z = c[0] * h0[i, 2]
-        if m > 1:
-            x += c[1] * h1[i, 0]
-            y += c[1] * h1[i, 1]
-            z += c[1] * h1[i, 2]
-        if m > 2:
-            x += c[2] * h2[i, 0]
-            y += c[2] * h2[i, 1]
-            z += c[2] * h2[i, 2]
-        if m > 3:
-            x += c[3] * h3[i, 0]
-            y += c[3] * h3[i, 1]
-            z += c[3] * h3[i, 2]
+        x = _extrapolated(c, h0, h1, h2, h3, i, 0)
+        y = _extrapolated(c, h0, h1, h2, h3, i, 1)
+        z = _extrapolated(c, h0, h1, h2, h3, i, 2)
         norm = np.sqrt(x * x + y * y + z * z)
         if norm > 0.0:
             x /= norm
@@ -335,28 +313,18 @@ def best_extrapolation_order(history, W, rows):
     """The extrapolation order that would have predicted ``W`` best from
     ``history`` (judged on a sample of ``rows``)."""
     n = min(len(history), len(_EXTRAPOLATION))
-    h0 = history[-1]
-    return _best_order(n, h0, history[-2] if n > 1 else h0, history[-3] if n > 2 else h0,
-                       history[-4] if n > 3 else h0, W, rows)
+    return _best_order(_EXTRAPOLATION[:n], *_last_four(history), W, rows)
 
 
 @nb.njit(cache=True)
-def _best_order(n, h0, h1, h2, h3, W, rows):
+def _best_order(C, h0, h1, h2, h3, W, rows):
     best = np.inf
     order = 0
-    for k in range(n):
+    for k in range(C.shape[0]):
         err = 0.0
         for r in rows:
             for c in range(3):
-                if k == 0:
-                    w = h0[r, c]
-                elif k == 1:
-                    w = 2.0 * h0[r, c] - h1[r, c]
-                elif k == 2:
-                    w = 3.0 * h0[r, c] - 3.0 * h1[r, c] + h2[r, c]
-                else:
-                    w = 4.0 * h0[r, c] - 6.0 * h1[r, c] + 4.0 * h2[r, c] - h3[r, c]
-                err = max(err, abs(w - W[r, c]))
+                err = max(err, abs(_extrapolated(C[k], h0, h1, h2, h3, r, c) - W[r, c]))
         if err < best:
             best = err
             order = k
