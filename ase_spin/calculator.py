@@ -40,11 +40,21 @@ class SpinLatticeCalculator(Calculator):
                               "magmoms", "magnetic_forces"]
     nolabel = True
 
-    def __init__(self, terms, skin=0.3, **kwargs):
-        super().__init__(**kwargs)
+    def __init__(self, terms, skin=0.3, *, label=None, atoms=None, directory="."):
+        # no **kwargs: ASE's Calculator would store a misspelt keyword and ignore it
         self.hamiltonian = terms if isinstance(terms, Hamiltonian) else Hamiltonian(terms, skin)
+        super().__init__(label=label, atoms=atoms, directory=directory)
         self.evaluator = None
         self._numbers = None
+        self._fingerprint = None
+
+    def check_state(self, atoms, tol=1e-15):
+        """ASE's comparison of the atoms, plus the term parameters: results
+        computed before ``lj.epsilon = ...`` are not reused after it."""
+        changes = super().check_state(atoms, tol)
+        if self._fingerprint != self.hamiltonian.fingerprint():
+            changes.append("parameters")
+        return changes
 
     def todict(self):
         return {"terms": [repr(t) for t in self.hamiltonian.terms],
@@ -60,7 +70,7 @@ class SpinLatticeCalculator(Calculator):
         moments = get_moments(atoms)
         magnetic = np.linalg.norm(moments, axis=1) > 0.0
         ev = self.evaluator
-        if ev is None or not np.array_equal(self._numbers, atoms.numbers):
+        if ev is None or ev.stale() or not np.array_equal(self._numbers, atoms.numbers):
             ev = self.evaluator = self.hamiltonian.bind(
                 atoms.numbers, atoms.cell.array, atoms.pbc, magnetic)
             self._numbers = atoms.numbers.copy()
@@ -74,6 +84,7 @@ class SpinLatticeCalculator(Calculator):
 
     def calculate(self, atoms=None, properties=("energy",), system_changes=all_changes):
         super().calculate(atoms, properties, system_changes)
+        self._fingerprint = self.hamiltonian.fingerprint()
         atoms = self.atoms
         want_stress = "stress" in properties
         if want_stress and atoms.cell.rank < 3:

@@ -21,7 +21,8 @@ import numpy as np
 
 from .neighbors import NeighborCache
 from .threads import threads_for
-from .terms.base import Species, Term
+from .terms.base import Species, Term, parameter_generation
+from .validate import real_scalar
 
 __all__ = ["Hamiltonian", "Evaluator", "Want", "Evaluation", "AtomsTooCloseError"]
 
@@ -60,20 +61,30 @@ class Hamiltonian:
     """
 
     def __init__(self, terms, skin=0.3):
-        terms = list(terms)
+        if isinstance(terms, Term):
+            terms = [terms]
+        terms = tuple(terms)
         for t in terms:
             if not isinstance(t, Term):
                 raise TypeError(f"Hamiltonian terms must be ase_spin Term objects, got {t!r}")
         if not terms:
             raise ValueError("a Hamiltonian needs at least one term")
+        skin = real_scalar(skin, "skin")
+        if not skin >= 0.0:
+            raise ValueError(f"skin must be >= 0 Å, got {skin}")
         self.terms = terms
-        self.skin = float(skin)
+        self.skin = skin
         names = [t.name for t in terms]
         self.term_names = [
             n if names.count(n) == 1 else f"{n}_{names[:k].count(n)}"
             for k, n in enumerate(names)
         ]
         self.cutoff = max(t.cutoff for t in terms)
+
+    def fingerprint(self):
+        """Changes whenever a parameter of a term (or of a coupling in it) is
+        reassigned: what bound tables and integrator states compare."""
+        return tuple(t.fingerprint() for t in self.terms)
 
     @property
     def lattice_terms(self):
@@ -135,16 +146,37 @@ class Evaluator:
         self.species = Species.from_symbols(_symbols(numbers))
         self.types = self.species.types
         self.natoms = len(self.types)
+        self._generation = parameter_generation()
+        self._fingerprint = hamiltonian.fingerprint()
         self._tables = [t.bind(self.species) for t in hamiltonian.terms]
         self.neighbors = NeighborCache(hamiltonian.cutoff, hamiltonian.skin)
+        self._changes = 0
         self.set_cell(cell, pbc)
         self.set_magnetic(magnetic)
+
+    def stale(self):
+        """True if a parameter of the Hamiltonian changed since this was bound
+        (then its tables and cutoffs are out of date: bind again)."""
+        generation = parameter_generation()
+        if generation == self._generation:
+            return False
+        if self.hamiltonian.fingerprint() != self._fingerprint:
+            return True
+        self._generation = generation  # something else changed
+        return False
+
+    @property
+    def state_token(self):
+        """Changes whenever the cell, periodicity, magnetic atoms or pair list
+        change: what a holder of cached pair geometry compares."""
+        return (self._changes, self.neighbors.builds)
 
     # -- system state -----------------------------------------------------
     def set_cell(self, cell, pbc):
         self.cell = np.array(cell, dtype=float).reshape(3, 3)
         self.pbc = np.array(pbc, dtype=bool).reshape(3) if np.ndim(pbc) else np.array([pbc] * 3)
         self.neighbors.invalidate()
+        self._changes += 1
 
     def set_magnetic(self, magnetic):
         magnetic = np.asarray(magnetic, dtype=bool)
@@ -152,6 +184,7 @@ class Evaluator:
             raise ValueError(f"magnetic mask must have shape ({self.natoms},)")
         self.magnetic = magnetic.copy()
         self.any_magnetic = bool(magnetic.any())
+        self._changes += 1
 
     def refresh(self, positions):
         """Make the pair lists valid for ``positions``; True if rebuilt."""
@@ -184,8 +217,7 @@ class Evaluator:
                              ev.forces if want.forces else _NO_ARRAY,
                              ev.energies if want.energies else _NO_ENERGIES, want)
             _accumulate(ev, name, e, w, want)
-        if want.forces:
-            _check_finite(ev.forces, positions, self.neighbors, "forces")
+        _check_finite(ev, positions, self.neighbors)
         return ev
 
     @_sized
@@ -251,8 +283,7 @@ class Evaluator:
                     e, w = t.compute(positions, self._pairs(t, half=True), self._pairs(t),
                                      self.types, table, spins, b, f, energies, want)
                     _accumulate(ev, name, e, w, want)
-            if want.forces:
-                _check_finite(ev.forces, positions, self.neighbors, "forces")
+            _check_finite(ev, positions, self.neighbors)
         if want.energy:
             for name in self.hamiltonian.term_names:
                 ev.energy_terms.setdefault(name, 0.0)
@@ -296,18 +327,29 @@ def _accumulate(ev, name, e, w, want):
         ev.virial += w
 
 
-def _check_finite(forces, positions, neighbors, what):
-    """Turn a NaN/inf from atoms on top of each other into an error naming them."""
-    if np.isfinite(forces).all():
+def _check_finite(ev, positions, neighbors):
+    """Turn a NaN/inf in any result into an error: atoms on top of each other
+    (named, the closest pair) or, failing that, parameters that overflow."""
+    parts = {"forces": ev.forces, "per-atom energies": ev.energies,
+             "magnetic forces": ev.magnetic_forces, "stress": ev.virial,
+             "energy": None if ev.energy is None else np.array([ev.energy])}
+    bad_parts = [name for name, x in parts.items()
+                 if x is not None and not np.isfinite(x).all()]
+    if not bad_parts:
         return
+    what = " and ".join(bad_parts)
     pairs = neighbors.pairs
+    if pairs is None or len(pairs) == 0:
+        raise ValueError(f"non-finite {what}: check the terms' parameters")
     i = pairs.i
     d = np.linalg.norm(positions[pairs.j] + pairs.shift - positions[i], axis=1)
-    k = int(np.argmin(d)) if len(d) else None
-    where = (f"; closest pair: atoms {i[k]} and {pairs.j[k]} at r = {d[k]:.3g} Å"
-             if k is not None else "")
-    bad = np.flatnonzero(~np.isfinite(forces).all(axis=1))
-    raise AtomsTooCloseError(
-        f"non-finite {what} on atoms {bad[:10].tolist()}: atoms overlap or are "
-        f"unphysically close{where}"
-    )
+    k = int(np.argmin(d))
+    where = f"closest pair: atoms {i[k]} and {pairs.j[k]} at r = {d[k]:.3g} Å"
+    if d[k] < _TOO_CLOSE:
+        raise AtomsTooCloseError(
+            f"non-finite {what}: atoms overlap or are unphysically close; {where}")
+    raise ValueError(f"non-finite {what} ({where}): check the terms' parameters")
+
+
+#: Below this distance (Å) a non-finite result is blamed on the atoms' positions.
+_TOO_CLOSE = 0.1

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["set_spins", "get_spins", "get_moments", "split_moments"]
+from .validate import real_array, robust_norm
+
+__all__ = ["set_spins", "get_spins", "get_moments", "split_moments", "MOMENT_RANGE"]
 
 
 def _name_atoms(indices, limit=10):
@@ -25,8 +27,23 @@ def _existing_magnitudes(atoms):
     """Magnitudes of the moments already on ``atoms`` (collinear or vector), or None."""
     if not atoms.has("initial_magmoms"):
         return None
-    m = np.asarray(atoms.arrays["initial_magmoms"], dtype=float)
-    return np.abs(m) if m.ndim == 1 else np.linalg.norm(m, axis=1)
+    m = real_array(atoms.arrays["initial_magmoms"], "initial_magmoms (magnetic moments)")
+    return np.abs(m) if m.ndim == 1 else split_moments(m)[1]
+
+
+#: Non-zero moment magnitudes (μB) must lie in this range: far outside anything
+#: physical, and inside it μ·s keeps every digit of the direction s.
+MOMENT_RANGE = (1e-100, 1e100)
+
+
+def _check_magnitudes(mu, what):
+    lo, hi = MOMENT_RANGE
+    bad = np.flatnonzero((mu != 0.0) & ~((mu >= lo) & (mu <= hi)))
+    if bad.size:
+        raise ValueError(
+            f"{what} of {_name_atoms(bad)} ({mu[bad[0]]:.3g} μB) outside the supported "
+            f"range: non-zero moments must lie between {lo:g} and {hi:g} μB"
+        )
 
 
 def set_spins(atoms, directions, magnitudes=None):
@@ -36,22 +53,25 @@ def set_spins(atoms, directions, magnitudes=None):
     ----------
     atoms : ase.Atoms
     directions : array_like, shape (N, 3) or (3,)
-        Spin directions; normalised here. A (3,) vector is used for every atom.
-        A zero row makes that atom non-magnetic (magnitude 0).
+        Spin directions: any finite real vectors, normalised here exactly at any
+        scale (1e300 or denormal components alike). A (3,) vector is used for
+        every atom. A zero row makes that atom non-magnetic (magnitude 0).
     magnitudes : float or array_like, shape (N,), optional
-        Moment magnitudes μ_i in μB. Default: the magnitudes already on the
-        atoms (collinear or vector ``initial_magmoms``) where they are non-zero,
-        else 1.
+        Moment magnitudes μ_i in μB, 0 or within :data:`MOMENT_RANGE`. Default:
+        the magnitudes already on the atoms (collinear or vector
+        ``initial_magmoms``) where they are non-zero, else 1.
 
     Raises
     ------
+    TypeError
+        Strings, booleans, complex numbers or other non-real values.
     ValueError
-        Wrong shapes, NaN/inf, negative magnitudes, or a zero direction given a
-        non-zero magnitude; the message names the offending atoms and ``atoms``
-        is left unchanged.
+        Wrong shapes, NaN/inf, negative magnitudes or magnitudes outside
+        :data:`MOMENT_RANGE`, or a zero direction given a non-zero magnitude;
+        the message names the offending atoms and ``atoms`` is left unchanged.
     """
     n = len(atoms)
-    d = np.asarray(directions, dtype=float)
+    d = real_array(directions, "spin directions")
     if d.shape == (3,):
         d = np.broadcast_to(d, (n, 3))
     if d.shape != (n, 3):
@@ -61,7 +81,7 @@ def set_spins(atoms, directions, magnitudes=None):
     bad = np.flatnonzero(~np.isfinite(d).all(axis=1))
     if bad.size:
         raise ValueError(f"spin directions are not finite for {_name_atoms(bad)}")
-    norms = np.linalg.norm(d, axis=1)
+    unit, norms = split_moments(d)
     zero = norms == 0.0
 
     if magnitudes is None:
@@ -69,7 +89,7 @@ def set_spins(atoms, directions, magnitudes=None):
         mu = np.ones(n) if mu is None else np.where(mu > 0.0, mu, 1.0)
         mu = np.where(zero, 0.0, mu)
     else:
-        mu = np.asarray(magnitudes, dtype=float)
+        mu = real_array(magnitudes, "spin magnitudes")
         if mu.ndim == 0:
             mu = np.full(n, float(mu))
         if mu.shape != (n,):
@@ -86,23 +106,23 @@ def set_spins(atoms, directions, magnitudes=None):
             raise ValueError(
                 f"zero spin direction with a non-zero magnitude for {_name_atoms(bad)}"
             )
-    unit = np.zeros((n, 3))
-    unit[~zero] = d[~zero] / norms[~zero, None]
+    _check_magnitudes(mu, "spin magnitudes")
     # ASE refuses to change an array's shape in place (collinear -> vector).
     atoms.set_array("initial_magmoms", None)
     atoms.set_initial_magnetic_moments(unit * mu[:, None])
 
 
 def get_moments(atoms):
-    """The (N, 3) moment vectors μ_i s_i; zeros when the atoms carry none.
+    """The (N, 3) moment vectors μ_i s_i as float64; zeros when the atoms carry none.
 
-    Raises ValueError for collinear (N,) moments (vectors are needed), a wrong
-    shape or non-finite values, naming the offending atoms.
+    Raises TypeError for moments that are not real numbers, ValueError for
+    collinear (N,) moments (vectors are needed), a wrong shape, non-finite
+    values or magnitudes outside :data:`MOMENT_RANGE`, naming the offending atoms.
     """
     n = len(atoms)
     if not atoms.has("initial_magmoms"):
         return np.zeros((n, 3))
-    m = np.asarray(atoms.arrays["initial_magmoms"], dtype=float)
+    m = real_array(atoms.arrays["initial_magmoms"], "initial_magmoms (magnetic moments)")
     if m.ndim == 1:
         nonzero = np.flatnonzero(m)
         if nonzero.size == 0:
@@ -116,15 +136,21 @@ def get_moments(atoms):
     bad = np.flatnonzero(~np.isfinite(m).all(axis=1))
     if bad.size:
         raise ValueError(f"magnetic moments are not finite for {_name_atoms(bad)}")
+    _check_magnitudes(robust_norm(m), "magnetic moments")
     return m
 
 
 def split_moments(moments):
-    """Split (N, 3) moments into unit directions (zero rows where μ = 0) and magnitudes."""
-    mu = np.linalg.norm(moments, axis=1)
-    unit = np.zeros_like(moments)
-    mag = mu > 0.0
-    unit[mag] = moments[mag] / mu[mag, None]
+    """Split (N, 3) vectors into unit directions (zero rows where the vector is
+    zero) and magnitudes, exactly at any scale (no overflow or underflow)."""
+    largest = np.abs(moments).max(axis=1) if len(moments) else np.zeros(0)
+    mag = largest > 0.0
+    scaled = moments[mag] / largest[mag, None]
+    norm = np.sqrt(np.einsum("ij,ij->i", scaled, scaled))
+    unit = np.zeros(moments.shape)
+    unit[mag] = scaled / norm[:, None]
+    mu = np.zeros(len(moments))
+    mu[mag] = largest[mag] * norm
     return unit, mu
 
 

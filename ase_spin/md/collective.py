@@ -7,6 +7,7 @@ matching b-coefficients, implicit in the midpoint spins W.
 
 from __future__ import annotations
 
+import copy
 from collections import deque
 
 import numpy as np
@@ -18,8 +19,9 @@ from .. import threads
 from ..calculator import SpinLatticeCalculator
 from ..hamiltonian import Want
 from ..neighbors import max_displacement
-from ..spins import split_moments
+from ..spins import _name_atoms, split_moments
 from ..terms.exchange import ExchangeGeometry
+from ..validate import integer, positive_scalar, real_array, real_scalar
 from . import kernels
 from .compositions import composition_coefficients
 from .logger import SpinMDLogger
@@ -35,11 +37,35 @@ _FORCES = Want(forces=True)
 _MAX_OUTER = 12
 
 
-_NONE = np.zeros(0)
 
 
 def _same(a, b):
+    if a is None or b is None:
+        return a is b
     return a.shape == b.shape and a.dtype == b.dtype and kernels.same(a, b)
+
+
+def _equal(x, y):
+    """Deep equality of constraint contents (arrays, containers, attributes)."""
+    if type(x) is not type(y):
+        return False
+    if isinstance(x, np.ndarray):
+        return x.shape == y.shape and x.dtype == y.dtype and bool(
+            np.array_equal(x, y, equal_nan=x.dtype.kind in "fc"))
+    if isinstance(x, (list, tuple)):
+        return len(x) == len(y) and all(_equal(a, b) for a, b in zip(x, y))
+    if isinstance(x, dict):
+        return x.keys() == y.keys() and all(_equal(x[k], y[k]) for k in x)
+    if hasattr(x, "__dict__") and not callable(x):
+        return _equal(vars(x), vars(y))
+    try:
+        return bool(x == y)
+    except Exception:  # noqa: BLE001 - incomparable: treat as changed
+        return False
+
+
+#: Tightest and loosest stopping tolerances of the midpoint iteration (on unit vectors).
+TOL_RANGE = (1e-16, 1e-3)
 
 
 class IntegrationError(RuntimeError):
@@ -133,22 +159,22 @@ class CollectivePRK(MolecularDynamics):
     def __init__(self, atoms, timestep, *, hbar=None, precession="moment", order=2,
                  composition=None, tol=None, max_iter=None, lattice="moving",
                  trajectory=None, logfile=None, loginterval=1, **kwargs):
-        if precession not in ("moment", "spin"):
+        if not isinstance(precession, str) or precession not in ("moment", "spin"):
             raise ValueError(f'precession must be "moment" or "spin", got {precession!r}')
-        if lattice not in ("moving", "frozen"):
+        if not isinstance(lattice, str) or lattice not in ("moving", "frozen"):
             raise ValueError(f'lattice must be "moving" or "frozen", got {lattice!r}')
-        if not np.isfinite(timestep) or timestep == 0.0:
-            raise ValueError(f"timestep must be finite and non-zero, got {timestep!r}")
+        timestep = real_scalar(timestep, "timestep")
+        if timestep == 0.0:
+            raise ValueError("timestep must be non-zero")
         self.precession = precession
         self.sigma = -1.0 if precession == "moment" else 1.0
-        self.hbar = HBAR if hbar is None else float(hbar)
-        if not self.hbar > 0.0:
-            raise ValueError(f"hbar must be positive, got {hbar!r}")
+        self.hbar = HBAR if hbar is None else positive_scalar(hbar, "hbar")
         self.order, self.gammas = composition_coefficients(order, composition)
-        self.tol = 1e-15 if tol is None else float(tol)
-        self.max_iter = 100 if max_iter is None else int(max_iter)
-        if not self.tol > 0.0 or self.max_iter < 1:
-            raise ValueError("tol must be positive and max_iter at least 1")
+        self.tol = 1e-15 if tol is None else real_scalar(tol, "tol")
+        if not TOL_RANGE[0] <= self.tol <= TOL_RANGE[1]:
+            raise ValueError(f"tol must lie between {TOL_RANGE[0]:g} and {TOL_RANGE[1]:g} "
+                             f"(a change of a unit spin component), got {self.tol:g}")
+        self.max_iter = 100 if max_iter is None else integer(max_iter, "max_iter", minimum=1)
         self.frozen_lattice = lattice == "frozen"
         super().__init__(atoms, timestep, trajectory=trajectory, logfile=None,
                          loginterval=loginterval, **kwargs)
@@ -170,22 +196,24 @@ class CollectivePRK(MolecularDynamics):
         atoms = self.atoms
         calc = atoms.calc
         if not isinstance(calc, SpinLatticeCalculator):
-            raise TypeError("CollectivePRK needs atoms.calc to be an ase_spin "
+            raise TypeError(f"{type(self).__name__} needs atoms.calc to be an ase_spin "
                             f"SpinLatticeCalculator, got {type(calc).__name__}")
         if not calc.hamiltonian.skin > 0.0:
             raise ValueError("CollectivePRK needs a neighbour-list skin > 0 (the "
                              "calculator's skin=...): one pair list serves q and q̃")
+        masses = _checked_masses(atoms)
+        momenta = _checked_momenta(atoms)
         ev, moments = calc.bound_evaluator(atoms)
         self._calc = calc
         self.ev = ev
         spins, mu = split_moments(moments)
-        self.masses = atoms.get_masses()[:, None]
+        self.masses = masses[:, None]
         self._spin_terms = [t for t in ev.hamiltonian.terms if t.spin_dependent]
         self.magnetic = ev.any_magnetic and bool(self._spin_terms)
         self.frozen = self.frozen_lattice or self._all_fixed()
         st = _State()
-        st.q = np.array(atoms.positions, dtype=float)
-        st.p = atoms.get_momenta()
+        st.q = real_array(atoms.positions, "positions").copy()
+        st.p = momenta
         st.s = np.ascontiguousarray(spins)
         st.mu = mu
         st.EL = st.EL_terms = None
@@ -193,8 +221,7 @@ class CollectivePRK(MolecularDynamics):
         # rounding errors of the last updates (compensated summation)
         st.carry_q, st.carry_p, st.carry_s = (np.zeros_like(st.q) for _ in range(3))
         self._carry_mid = np.zeros_like(st.q)
-        if not self.frozen:
-            st.FL = ev.lattice(st.q, _FORCES).forces
+        st.FL = np.zeros_like(st.q) if self.frozen else ev.lattice(st.q, _FORCES).forces
         st.Gq = ev.exchange_geometry(st.q, half=self.half_lists) if self.magnetic else None
         st.history = [deque(maxlen=4) for _ in self.gammas]
         st.predictor_order = [0 for _ in self.gammas]
@@ -214,32 +241,58 @@ class CollectivePRK(MolecularDynamics):
         return bool(fixed.all()) and len(self.atoms) > 0
 
     def _remember_written(self):
+        """Snapshot of everything the cached state was derived from. Kept by
+        value (copies), not by identity: Python reuses ids and arrays are edited
+        in place."""
         a = self.atoms
-        self._written = (a.arrays["positions"].copy(), a.arrays.get("momenta", _NONE).copy(),
-                         a.arrays.get("initial_magmoms", _NONE).copy(),
+        arrays = a.arrays
+        self._written = (arrays["positions"].copy(), _copy(arrays.get("momenta")),
+                         _copy(arrays.get("initial_magmoms")), _copy(arrays.get("masses")),
                          a.cell.array.copy(), a.pbc.copy(), a.numbers.copy(),
-                         [id(c) for c in a.constraints], id(a.calc))
+                         copy.deepcopy(a.constraints) if a.constraints else [],
+                         self.ev.state_token)
 
     def _in_sync(self):
-        """True if the Atoms are as this integrator left them (else every cache
-        is stale: a user moved atoms, set spins, momenta, cell or constraints)."""
+        """True if the Atoms, their calculator and its terms are as this
+        integrator left them (else every cache is stale: a user moved atoms; set
+        spins, momenta, masses, cell or constraints; changed a term's parameter;
+        or the calculator served other Atoms in between)."""
         if self._state is None:
             return False
         a = self.atoms
-        pos, mom, mag, cell, pbc, numbers, cons, calc = self._written
+        pos, mom, mag, masses, cell, pbc, numbers, cons, token = self._written
         arrays = a.arrays
-        return (id(a.calc) == calc and len(a) == len(numbers)
+        calc = self._calc
+        return (a.calc is calc and calc.evaluator is self.ev
+                and self.ev.state_token == token and not self.ev.stale()
+                and len(a) == len(numbers)
                 and _same(arrays["positions"], pos)
-                and _same(arrays.get("momenta", _NONE), mom)
-                and _same(arrays.get("initial_magmoms", _NONE), mag)
+                and _same(arrays.get("momenta"), mom)
+                and _same(arrays.get("initial_magmoms"), mag)
+                and _same(arrays.get("masses"), masses)
                 and np.array_equal(a.cell.array, cell) and np.array_equal(a.pbc, pbc)
                 and np.array_equal(a.numbers, numbers)
-                and [id(c) for c in a.constraints] == cons)
+                and _equal(list(a.constraints), cons))
 
     def _sync(self):
         if not self._in_sync():
+            self._state = None
             self._initialize()
         return self._state
+
+    def _restore(self, snapshot):
+        """Put the Atoms back as they were at ``snapshot`` (after a failed or
+        interrupted step), in place where possible."""
+        pos, mom, mag, *_ = snapshot
+        arrays = self.atoms.arrays
+        for name, saved in (("positions", pos), ("momenta", mom), ("initial_magmoms", mag)):
+            now = arrays.get(name)
+            if saved is None:
+                arrays.pop(name, None)
+            elif now is not None and now.shape == saved.shape and now.dtype == saved.dtype:
+                now[:] = saved
+            else:
+                arrays[name] = saved.copy()
 
     # -- the step ---------------------------------------------------------------
     def step(self):
@@ -247,11 +300,28 @@ class CollectivePRK(MolecularDynamics):
         with threads.threads_for(len(self.atoms)):
             self._step()
 
-    def _step(self):
+    def irun(self, steps=50):
+        """ASE's ``MolecularDynamics.irun``, with the step counter advanced
+        together with the Atoms: an interrupt (Ctrl-C) leaves both at the state
+        before a step or both after it."""
+        self.max_steps = self.nsteps + steps
+        if self.nsteps == 0:
+            self._refresh_properties()
+            self.log()
+            self.call_observers()
+        yield self.nsteps == self.max_steps
+        while self.nsteps < self.max_steps:
+            with threads.threads_for(len(self.atoms)):
+                self._step(count=True)
+            self._refresh_properties()
+            self.log()
+            self.call_observers()
+            yield self.nsteps == self.max_steps
+
+    def _step(self, count=False):
         st = self._sync()
-        atoms = self.atoms
-        constrained = bool(atoms.constraints)
-        saved = (atoms.arrays["positions"].copy(), atoms.get_momenta()) if constrained else None
+        before = self._written
+        nsteps = self.nsteps
         want_energy = self._observer_due(self.nsteps + 1)
         iterations = geometries = 0
         try:
@@ -260,29 +330,47 @@ class CollectivePRK(MolecularDynamics):
                 it, ng = self._substep(gamma * self.dt, stage, want_energy and stage == last)
                 iterations += it
                 geometries += ng
+            self._check_state_finite()
+            if self.atoms.constraints:  # positions and momenta set by constraints: no carries
+                st = self._state
+                for carry in (st.carry_q, st.carry_p, st.carry_s):
+                    carry[:] = 0.0
+            self._commit()
+            if count:
+                self.nsteps = nsteps + 1
         except BaseException:
-            if saved is not None:
-                atoms.arrays["positions"][:] = saved[0]
-                atoms.set_momenta(saved[1], apply_constraint=False)
+            # an error or an interrupt (Ctrl-C) anywhere in the step, the write-back
+            # included: the Atoms go back to the state before it, whole
             self._state = None
+            self.nsteps = nsteps
+            self._restore(before)
             raise
         self.iterations = iterations
         self.geometry_evaluations = geometries
         self.total_iterations += iterations
         self.total_steps += 1
-        if atoms.constraints:  # positions and momenta set by constraints: no carries
-            st = self._state
-            for carry in (st.carry_q, st.carry_p, st.carry_s):
-                carry[:] = 0.0
-        self._commit()
+
+    def _check_state_finite(self):
+        st = self._state
+        for name, x in (("positions", st.q), ("momenta", st.p), ("spins", st.s)):
+            bad = kernels.first_nonfinite_row(x)
+            if bad >= 0:
+                raise IntegrationError(
+                    f"the step gave non-finite {name} ({_name_atoms([bad])}) at step "
+                    f"{self.nsteps}: the forces or fields are not finite or the timestep "
+                    f"({self.dt / units.fs:.4g} fs) is far too large. The atoms keep the "
+                    f"state before this step.")
 
     def _commit(self):
+        """Write the new state into the Atoms: in place (so references to
+        ``atoms.positions`` stay live), float64 whatever dtype the user's arrays
+        had (an integer or float32 array is replaced, not truncated)."""
         st = self._state
-        a = self.atoms
-        a.arrays["positions"][:] = st.q
-        a.set_momenta(st.p, apply_constraint=False)
+        arrays = self.atoms.arrays
+        _write(arrays, "positions", st.q)
+        _write(arrays, "momenta", st.p)
         if self.magnetic:
-            a.arrays["initial_magmoms"][:] = st.mu[:, None] * st.s
+            _write(arrays, "initial_magmoms", st.mu[:, None] * st.s)
         st.observables = None
         self._remember_written()
 
@@ -607,3 +695,35 @@ class CollectivePRK(MolecularDynamics):
         # find them cached; this integrator's logger reads its own state, so
         # that would be one wasted full evaluation per step.
         pass
+
+
+def _copy(a):
+    return None if a is None else a.copy()
+
+
+def _write(arrays, name, values):
+    """arrays[name] = values, in place if the array is float64 of that shape."""
+    now = arrays.get(name)
+    if now is not None and now.dtype == np.float64 and now.shape == values.shape:
+        now[:] = values
+    else:
+        arrays[name] = np.array(values, dtype=np.float64)
+
+
+def _checked_masses(atoms):
+    masses = real_array(atoms.get_masses(), "masses")
+    bad = np.flatnonzero(~(np.isfinite(masses) & (masses > 0.0)))
+    if bad.size:
+        raise ValueError(f"masses must be finite and positive; {_name_atoms(bad)} "
+                         f"{'has' if bad.size == 1 else 'have'} mass {float(masses[bad[0]])}")
+    return masses
+
+
+def _checked_momenta(atoms):
+    if "momenta" not in atoms.arrays:
+        return np.zeros((len(atoms), 3))
+    p = real_array(atoms.arrays["momenta"], "momenta", shape=(len(atoms), 3)).copy()
+    bad = np.flatnonzero(~np.isfinite(p).all(axis=1))
+    if bad.size:
+        raise ValueError(f"momenta are not finite for {_name_atoms(bad)}")
+    return p

@@ -342,3 +342,13 @@ def same(a, b):
         if x[i] != y[i]:
             return False
     return True
+
+
+@nb.njit(cache=True)
+def first_nonfinite_row(a):
+    """Index of the first row of a 2-D array holding a NaN or inf, else −1."""
+    for i in range(a.shape[0]):
+        for c in range(a.shape[1]):
+            if not np.isfinite(a[i, c]):
+                return i
+    return -1

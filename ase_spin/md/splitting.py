@@ -12,8 +12,14 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from ase import units
+
 from . import kernels
-from .collective import CollectivePRK
+from .collective import CollectivePRK, UnstableStepError
+
+#: Largest rotation (rad) of one spin in one sweep before the step is refused:
+#: far beyond it the splitting is meaningless (the Cayley rotation saturates at π).
+MAX_SWEEP_ROTATION = 1.0
 
 __all__ = ["SuzukiTrotter"]
 
@@ -93,8 +99,14 @@ class SuzukiTrotter(CollectivePRK):
 
     def _spin_half_step(self, geom, h):
         pairs = geom.pairs
-        rotate_sweeps(pairs.row, pairs.j, geom.J, self._state.s,
-                      -0.25 * h * self.sigma / self.hbar, self.rotation == "exact")
+        angle = rotate_sweeps(pairs.row, pairs.j, geom.J, self._state.s,
+                              -0.25 * h * self.sigma / self.hbar, self.rotation == "exact")
+        if not angle <= MAX_SWEEP_ROTATION:
+            raise UnstableStepError(
+                f"a spin was to rotate by {angle:.3g} rad in one sweep (h/4·|B|/ħ) at step "
+                f"{self.nsteps}; above {MAX_SWEEP_ROTATION} rad the splitting is "
+                f"meaningless. Reduce the timestep (now {self.dt / units.fs:.4g} fs) or "
+                f"check hbar ({self.hbar:.4g}). The atoms keep the state before this step.")
 
 
 @nb.njit(cache=True)
@@ -102,8 +114,10 @@ def rotate_sweeps(row, nbr, J, s, tau, exact):
     """A forward then a backward sweep over the spins, in place: spin i is
     rotated about its current field, θ = τ B_i with B_i = Σ_j J_ij s_j from the
     spins as they are at that moment (so later spins see earlier updates).
-    Cayley rotation (LAMMPS's AdvanceSingleSpin) or the exact one."""
+    Cayley rotation (LAMMPS's AdvanceSingleSpin) or the exact one. Returns the
+    largest |θ| (NaN if a field was not finite)."""
     n = len(row) - 1
+    largest = 0.0
     for sweep in range(2):
         for a in range(n):
             i = a if sweep == 0 else n - 1 - a
@@ -124,6 +138,8 @@ def rotate_sweeps(row, nbr, J, s, tau, exact):
             ty *= tau
             tz *= tau
             t2 = tx * tx + ty * ty + tz * tz
+            if not t2 <= largest and largest == largest:  # a NaN stays
+                largest = t2
             cx = ty * sz - tz * sy  # θ × s
             cy = tz * sx - tx * sz
             cz = tx * sy - ty * sx
@@ -143,3 +159,4 @@ def rotate_sweeps(row, nbr, J, s, tau, exact):
                 s[i, 0] = (sx + cx + 0.5 * (tx * ts - 0.5 * sx * t2)) / d
                 s[i, 1] = (sy + cy + 0.5 * (ty * ts - 0.5 * sy * t2)) / d
                 s[i, 2] = (sz + cz + 0.5 * (tz * ts - 0.5 * sz * t2)) / d
+    return np.sqrt(largest)

@@ -2,11 +2,119 @@
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Term", "Species", "pair_key", "resolve_pairs"]
+from ..validate import real_scalar
+
+__all__ = ["Term", "Parameterised", "PairParameters", "Species", "pair_key", "resolve_pairs",
+           "pair_values", "parameter_generation"]
+
+_versions = itertools.count(1)
+_last_change = [0]
+
+
+def parameter_generation():
+    """A number that grows whenever any term's or coupling's parameter is assigned:
+    caches built from parameters compare it before trusting themselves."""
+    return _last_change[0]
+
+
+class Parameterised:
+    """An object whose parameters are its constructor's arguments.
+
+    ``_parameters`` maps each constructor argument to the attribute that holds
+    it. Assigning a parameter after construction (``lj.epsilon = 0.5``) runs the
+    constructor's checks again on the new set (a bad value is refused and the
+    object left as it was) and gives the object a new version, so that every
+    table, pair list and integrator state built from the old values knows it is
+    stale (see :meth:`fingerprint`). Any other public attribute assigned later
+    also counts as a change.
+    """
+
+    _parameters: dict = {}
+
+    def _finish(self):
+        """Call at the end of ``__init__``: from now on assignments are changes."""
+        self.__dict__["_version"] = next(_versions)
+        _last_change[0] = self.__dict__["_version"]
+
+    def __setattr__(self, name, value):
+        if "_version" not in self.__dict__ or name.startswith("_"):
+            object.__setattr__(self, name, value)
+            return
+        by_attribute = {attr: arg for arg, attr in self._parameters.items()}
+        if name in by_attribute:
+            args = {arg: getattr(self, attr) for arg, attr in self._parameters.items()}
+            args[by_attribute[name]] = value
+            fresh = object.__new__(type(self))
+            fresh.__init__(**args)  # the constructor's checks; raises, self unchanged
+            self.__dict__.update(fresh.__dict__)
+        else:
+            object.__setattr__(self, name, value)
+            self.__dict__["_version"] = next(_versions)
+        _last_change[0] = self.__dict__["_version"]
+
+    def fingerprint(self):
+        """Versions of this object and of the parameterised objects it holds
+        (couplings inside a term): equal fingerprints, equal parameters."""
+        nested = []
+        for attr in self._parameters.values():
+            value = getattr(self, attr, None)
+            values = value.values() if isinstance(value, Mapping) else (value,)
+            nested.extend(v.fingerprint() for v in values if isinstance(v, Parameterised))
+        return (type(self).__name__, self.__dict__.get("_version", 0), *nested)
+
+
+class PairParameters(Mapping):
+    """A read-only mapping of per-species-pair parameters, kept by a term.
+
+    Editing it in place is refused: the term would not know that its tables
+    are stale. Assign a new mapping instead (``lj.epsilon = {...}``).
+    """
+
+    def __init__(self, mapping, what):
+        self._data = dict(mapping)
+        self._what = what
+
+    def __getitem__(self, key):
+        return self._data[key]
+
+    def __iter__(self):
+        return iter(self._data)
+
+    def __len__(self):
+        return len(self._data)
+
+    def __setitem__(self, key, value):
+        raise TypeError(
+            f"{self._what} is read-only once given to a term: assign a new mapping "
+            "to the term's attribute instead (e.g. lj.epsilon = {...})")
+
+    __delitem__ = __setitem__
+
+    def __repr__(self):
+        return repr(self._data)
+
+
+def pair_values(value, what, check):
+    """Check a per-pair parameter: one value or a mapping keyed by pairs of
+    symbols. ``check(v, what)`` validates one value (and returns it normalised).
+    Returns the value, or a :class:`PairParameters` copy of the mapping."""
+    if isinstance(value, Mapping):
+        checked = {}
+        for key, v in value.items():
+            k = pair_key(key)
+            checked[key] = check(v, f"{what} for the pair {k[0]}-{k[1]}")
+        return PairParameters(checked, what)
+    return check(value, what)
+
+
+def real_or_none(value, what):
+    return None if value is None else real_scalar(value, what)
 
 
 def pair_key(key):
@@ -24,7 +132,7 @@ def pair_key(key):
 
 
 def is_pair_mapping(value):
-    return isinstance(value, dict)
+    return isinstance(value, Mapping)
 
 
 def resolve_pairs(value, symbols, what):
@@ -70,12 +178,13 @@ class Species:
         return cls(tuple(str(s) for s in symbols), types.astype(np.int64))
 
 
-class Term:
+class Term(Parameterised):
     """A term of the Hamiltonian.
 
     Subclasses define ``cutoff`` (Å, the range of the term), ``spin_dependent``
     and ``name`` (the key in ``calc.results['energy_terms']``), and implement
-    :meth:`bind` to turn their parameters into per-species-pair tables.
+    :meth:`bind` to turn their parameters into per-species-pair tables. Their
+    parameters may be reassigned after construction (see :class:`Parameterised`).
     """
 
     name = "term"

@@ -8,7 +8,8 @@ import numpy as np
 from .. import threads
 from ..neighbors import balanced_chunks, reduce_threads, reduce_threads_serial, separation
 from ..threads import threaded
-from .base import Term, is_pair_mapping, resolve_pairs
+from ..validate import flag, positive_scalar, real_scalar
+from .base import Parameterised, Term, is_pair_mapping, pair_values, resolve_pairs
 
 __all__ = ["Coupling", "BetheSlater", "Cubic", "Exchange", "ExchangeGeometry"]
 
@@ -19,12 +20,15 @@ _OFF, _BETHE_SLATER, _CUBIC, _PYTHON = 0, 1, 2, 3
 _RC2, _FORM, _P0, _P1, _P2 = range(5)
 
 
-class Coupling:
+class Coupling(Parameterised):
     """A distance-dependent exchange coupling J(r) (eV).
 
     Subclasses implement :meth:`values` returning ``(J(r), J'(r))`` for an array
     of distances; any object with such a method (and an ``rc`` attribute, the
     distance beyond which J vanishes, or None) plugs into :class:`Exchange`.
+    Parameters of the couplings here may be reassigned (``bs.J1 = ...``); the
+    terms and integrators using them notice. Other objects are taken to be
+    fixed once given to a term.
     """
 
     rc = None
@@ -59,12 +63,15 @@ class BetheSlater(Coupling):
 
     _form = _BETHE_SLATER
 
+    _parameters = {"J1": "J1", "J2": "J2", "J3": "J3"}
+
     def __init__(self, J1, J2, J3):
-        if not (np.isfinite([J1, J2, J3]).all() and J3 > 0):
-            raise ValueError(f"BetheSlater needs finite J1, J2 and J3 > 0, got {J1}, {J2}, {J3}")
-        self.J1, self.J2, self.J3 = float(J1), float(J2), float(J3)
+        self.J1 = real_scalar(J1, "BetheSlater J1")
+        self.J2 = real_scalar(J2, "BetheSlater J2")
+        self.J3 = positive_scalar(J3, "BetheSlater J3")
         # kernel parameters: J1, J2 and 1/J3² (a product per pair, not a division)
         self._params = (self.J1, self.J2, 1.0 / self.J3**2)
+        self._finish()
 
     def values(self, r):
         x = (r / self.J3) ** 2
@@ -90,11 +97,13 @@ class Cubic(Coupling):
 
     _form = _CUBIC
 
+    _parameters = {"J0": "J0", "rc": "rc"}
+
     def __init__(self, J0, rc):
-        if not (np.isfinite([J0, rc]).all() and rc > 0):
-            raise ValueError(f"Cubic needs finite J0 and rc > 0, got {J0}, {rc}")
-        self.J0, self.rc = float(J0), float(rc)
+        self.J0 = real_scalar(J0, "Cubic J0")
+        self.rc = positive_scalar(rc, "Cubic rc")
         self._params = (self.J0, self.rc, 1.0 / self.rc)
+        self._finish()
 
     def values(self, r):
         x = np.where(r < self.rc, 1.0 - r / self.rc, 0.0)
@@ -102,6 +111,29 @@ class Cubic(Coupling):
 
     def __repr__(self):
         return f"Cubic(J0={self.J0}, rc={self.rc})"
+
+
+def _user_values(coupling, r):
+    """(J, J') of a coupling evaluated by its own ``values(r)``, checked: a NaN
+    here would otherwise reach the spins of every atom within a step."""
+    J, dJ = coupling.values(r)
+    J = np.asarray(J, dtype=float)
+    dJ = np.asarray(dJ, dtype=float)
+    if J.shape != r.shape or dJ.shape != r.shape:
+        raise ValueError(f"coupling {coupling!r}: values(r) must return two arrays shaped "
+                         f"like r {r.shape}, got {J.shape} and {dJ.shape}")
+    bad = ~(np.isfinite(J) & np.isfinite(dJ))
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise ValueError(f"coupling {coupling!r} returned non-finite values at r = {float(r[k])} Å: "
+                         f"J = {J[k]}, J' = {dJ[k]}")
+    return J, dJ
+
+
+def _check_coupling(c, what):
+    if c is not None and not callable(getattr(c, "values", None)):
+        raise TypeError(f"{what}: a coupling needs a values(r) -> (J, dJ) method; got {c!r}")
+    return c
 
 
 class ExchangeGeometry:
@@ -154,14 +186,14 @@ class Exchange(Term):
     name = "exchange"
     spin_dependent = True
 
+    _parameters = {"coupling": "coupling", "rc": "rc", "offset": "offset"}
+
     def __init__(self, coupling, rc=None, offset=False):
-        self.coupling = coupling
-        self.offset = bool(offset)
-        couplings = list(coupling.values()) if is_pair_mapping(coupling) else [coupling]
+        self.coupling = pair_values(coupling, "Exchange coupling", _check_coupling)
+        self.offset = flag(offset, "Exchange offset")
+        couplings = (list(self.coupling.values()) if is_pair_mapping(self.coupling)
+                     else [self.coupling])
         couplings = [c for c in couplings if c is not None]
-        for c in couplings:
-            if not hasattr(c, "values"):
-                raise TypeError(f"a coupling needs a values(r) -> (J, dJ) method; got {c!r}")
         if rc is None:
             own = [getattr(c, "rc", None) for c in couplings]
             if not own or any(r is None for r in own):
@@ -169,11 +201,10 @@ class Exchange(Term):
                     "Exchange needs rc: a coupling without a cutoff of its own "
                     "(such as BetheSlater) was given"
                 )
-            rc = max(own)
-        if not (np.isfinite(rc) and rc > 0.0):
-            raise ValueError(f"Exchange: rc must be positive, got {rc}")
-        self.rc = float(rc)
+            rc = max(positive_scalar(r, "the coupling's rc") for r in own)
+        self.rc = positive_scalar(rc, "Exchange rc")
         self.cutoff = self.rc
+        self._finish()
 
     def __repr__(self):
         return f"Exchange({self.coupling!r}, rc={self.rc}, offset={self.offset})"
@@ -242,7 +273,7 @@ class Exchange(Term):
         ti, tj = types[i], types[pairs.j]
         for a, b in zip(*np.nonzero(table[:, :, _FORM] != _OFF)):
             sel = (ti == a) & (tj == b) & (r * r <= table[a, b, _RC2])
-            J[sel], dJ[sel] = couplings[a, b].values(r[sel])
+            J[sel], dJ[sel] = _user_values(couplings[a, b], r[sel])
         geom.J[:] = J
         geom.G[:] = (dJ / np.where(r > 0.0, r, 1.0))[:, None] * d
         if geom.D is not None:

@@ -8,7 +8,8 @@ import numpy as np
 from .. import threads
 from ..neighbors import balanced_chunks, reduce_threads, reduce_threads_serial, separation
 from ..threads import threaded
-from .base import Term, is_pair_mapping, resolve_pairs
+from ..validate import positive_scalar
+from .base import Term, is_pair_mapping, pair_values, real_or_none, resolve_pairs
 
 __all__ = ["LennardJones"]
 
@@ -16,6 +17,10 @@ _PLAIN, _SHIFT, _SMOOTH = 0, 1, 2
 _MODES = {"plain": _PLAIN, "shift": _SHIFT, "smooth": _SMOOTH}
 # Columns of the per-species-pair table.
 _RC2, _EPS4, _SIG2, _MODE, _E0, _RO2 = range(6)
+
+
+def _positive_or_none(value, what):
+    return None if value is None else positive_scalar(value, what)
 
 
 class LennardJones(Term):
@@ -55,19 +60,23 @@ class LennardJones(Term):
     spin_dependent = False
     half_list = True
 
+    _parameters = {"epsilon": "epsilon", "sigma": "sigma", "rc": "rc", "cutoff": "mode",
+                   "r_on": "r_on"}
+
     def __init__(self, epsilon, sigma, rc, cutoff="plain", r_on=None):
-        if cutoff not in _MODES:
-            raise ValueError(f"cutoff must be one of {sorted(_MODES)}, got {cutoff!r}")
-        self.epsilon = epsilon
-        self.sigma = sigma
-        self.rc = rc
-        self.r_on = r_on
+        if not isinstance(cutoff, str) or cutoff not in _MODES:
+            raise ValueError(f"LennardJones cutoff must be one of {sorted(_MODES)}, "
+                             f"got {cutoff!r}")
+        self.epsilon = pair_values(epsilon, "LennardJones epsilon", real_or_none)
+        self.sigma = pair_values(sigma, "LennardJones sigma", _positive_or_none)
+        self.rc = pair_values(rc, "LennardJones rc", positive_scalar)
+        self.r_on = pair_values(r_on, "LennardJones r_on", real_or_none)
         self.mode = cutoff
-        rcs = list(rc.values()) if is_pair_mapping(rc) else [rc]
-        for r in rcs:
-            if not (np.isfinite(r) and r > 0.0):
-                raise ValueError(f"LennardJones: rc must be positive, got {r}")
+        rcs = list(self.rc.values()) if is_pair_mapping(self.rc) else [self.rc]
+        if not rcs:
+            raise ValueError("LennardJones rc: the mapping is empty")
         self.cutoff = float(max(rcs))
+        self._finish()
 
     def __repr__(self):
         return (
@@ -88,11 +97,10 @@ class LennardJones(Term):
                 e, s, rc, ro = eps[a, b], sig[a, b], rcs[a, b], ron[a, b]
                 if e is None or e == 0.0:
                     continue
-                if not (np.isfinite(e) and np.isfinite(s) and s > 0.0):
+                if s is None:
                     raise ValueError(
-                        f"LennardJones {symbols[a]}-{symbols[b]}: need finite epsilon and "
-                        f"sigma > 0, got epsilon={e}, sigma={s}"
-                    )
+                        f"LennardJones sigma for the pair {symbols[a]}-{symbols[b]} is None "
+                        f"but its epsilon is {e}: give sigma > 0 (or epsilon None)")
                 ro = 0.66 * rc if ro is None else float(ro)
                 if self.mode == "smooth" and not 0.0 <= ro < rc:
                     raise ValueError(f"LennardJones: need 0 <= r_on < rc, got r_on={ro}, rc={rc}")

@@ -1,0 +1,99 @@
+"""Checks for values where they enter the package: numbers, arrays, flags.
+
+Every public entry point (spins, Atoms arrays, term parameters, integrator
+settings) turns user input into float64 / bool / int here, so that a string, a
+complex number or a NaN is refused with a message naming the input, instead of
+being silently converted (``float("1")``, dropped imaginary parts, ``bool("no")``)
+or failing deep inside numpy or numba.
+"""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+__all__ = ["real_array", "real_scalar", "positive_scalar", "flag", "integer", "robust_norm"]
+
+
+def _kind_error(what, value):
+    kind = type(value).__name__
+    return TypeError(f"{what} must be real numbers, got {kind} {value!r:.60}")
+
+
+def real_array(value, what, shape=None):
+    """``value`` as a C-contiguous float64 array.
+
+    Integer and lower-precision float arrays are converted exactly. Strings,
+    bytes, booleans, complex numbers and objects that are not real numbers
+    raise TypeError naming ``what``; a wrong ``shape`` raises ValueError.
+    Finiteness is the caller's business (it knows which rows to name).
+    """
+    if isinstance(value, (str, bytes)):
+        raise _kind_error(what, value)
+    try:
+        arr = np.asarray(value)
+    except (ValueError, TypeError) as err:  # ragged nested sequences
+        raise ValueError(f"{what} must be a regular array of numbers: {err}") from None
+    kind = arr.dtype.kind
+    if kind == "O":
+        flat = arr.ravel()
+        for v in flat:
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
+                raise _kind_error(what, v)
+        arr = np.array([float(v) for v in flat], dtype=np.float64).reshape(arr.shape)
+    elif kind not in "iuf":
+        raise TypeError(f"{what} must be real numbers, got an array of dtype {arr.dtype}")
+    arr = np.asarray(arr, dtype=np.float64, order="C")
+    if shape is not None and arr.shape != tuple(shape):
+        raise ValueError(f"{what} must have shape {tuple(shape)}, got {arr.shape}")
+    return arr
+
+
+def real_scalar(value, what, finite=True):
+    """A real number as float; TypeError for strings, bools, complex, None,
+    arrays; ValueError for NaN/inf when ``finite``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Real, np.number)) \
+            or isinstance(value, (complex, np.complexfloating)):
+        raise TypeError(f"{what} must be a real number, got {type(value).__name__} {value!r:.60}")
+    x = float(value)
+    if finite and not np.isfinite(x):
+        raise ValueError(f"{what} must be finite, got {x}")
+    return x
+
+
+def positive_scalar(value, what):
+    """A finite real number > 0."""
+    x = real_scalar(value, what)
+    if not x > 0.0:
+        raise ValueError(f"{what} must be positive, got {x}")
+    return x
+
+
+def flag(value, what):
+    """``True`` or ``False`` only: ``bool("False")`` is True, so strings and
+    numbers are refused rather than guessed."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise TypeError(f"{what} must be True or False, got {type(value).__name__} {value!r:.60}")
+
+
+def integer(value, what, minimum=None):
+    """An integer (Python or numpy; not bool, not float) >= ``minimum``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Integral,
+                                                                     np.integer)):
+        raise TypeError(f"{what} must be an integer, got {type(value).__name__} {value!r:.60}")
+    n = int(value)
+    if minimum is not None and n < minimum:
+        raise ValueError(f"{what} must be at least {minimum}, got {n}")
+    return n
+
+
+def robust_norm(v):
+    """Row norms of a finite (n, 3) array without overflow or underflow:
+    |v| = m·|v/m| with m = max |v_k| (np.linalg.norm squares first, so 1e200
+    becomes inf and 1e-170 becomes 0)."""
+    m = np.abs(v).max(axis=1) if len(v) else np.zeros(0)
+    safe = np.where(m > 0.0, m, 1.0)
+    scaled = v / safe[:, None]
+    return m * np.sqrt(np.einsum("ij,ij->i", scaled, scaled))
