@@ -248,7 +248,7 @@ class CollectivePRK(MolecularDynamics):
         arrays = a.arrays
         self._written = (arrays["positions"].copy(), _copy(arrays.get("momenta")),
                          _copy(arrays.get("initial_magmoms")), _copy(arrays.get("masses")),
-                         a.cell.array.copy(), a.pbc.copy(), a.numbers.copy(),
+                         a.cell.array.copy(), a.pbc.tolist(), a.numbers.copy(),
                          copy.deepcopy(a.constraints) if a.constraints else [],
                          self.ev.state_token)
 
@@ -263,16 +263,17 @@ class CollectivePRK(MolecularDynamics):
         pos, mom, mag, masses, cell, pbc, numbers, cons, token = self._written
         arrays = a.arrays
         calc = self._calc
+        # cheapest tests first: this runs before every step
         return (a.calc is calc and calc.evaluator is self.ev
                 and self.ev.state_token == token and not self.ev.stale()
-                and len(a) == len(numbers)
+                and len(a) == len(numbers) and a.pbc.tolist() == pbc
+                and _same(a.cell.array, cell)
                 and _same(arrays["positions"], pos)
                 and _same(arrays.get("momenta"), mom)
                 and _same(arrays.get("initial_magmoms"), mag)
                 and _same(arrays.get("masses"), masses)
-                and np.array_equal(a.cell.array, cell) and np.array_equal(a.pbc, pbc)
-                and np.array_equal(a.numbers, numbers)
-                and _equal(list(a.constraints), cons))
+                and _same(arrays["numbers"], numbers)
+                and (not cons and not a.constraints or _equal(list(a.constraints), cons)))
 
     def _sync(self):
         if not self._in_sync():
