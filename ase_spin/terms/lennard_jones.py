@@ -72,6 +72,10 @@ class LennardJones(Term):
         self.rc = pair_values(rc, "LennardJones rc", positive_scalar)
         self.r_on = pair_values(r_on, "LennardJones r_on", real_or_none)
         self.mode = cutoff
+        if (self.sigma is None and not is_pair_mapping(self.epsilon)
+                and self.epsilon not in (None, 0.0)):
+            raise ValueError(f"LennardJones sigma is None but epsilon is {self.epsilon}: "
+                             "give sigma > 0 (or epsilon None to switch the term off)")
         rcs = list(self.rc.values()) if is_pair_mapping(self.rc) else [self.rc]
         if not rcs:
             raise ValueError("LennardJones rc: the mapping is empty")
