@@ -127,10 +127,13 @@ def _sort_rows(row, j, shift_int, order):
 
 @nb.njit(cache=True, inline="always")
 def separation(pos, images, i, j, m):
-    """d_ij = r_j + S_m − r_i and |d_ij|² for pair (i, j) with image shift m."""
-    dx = pos[j, 0] + images[m, 0] - pos[i, 0]
-    dy = pos[j, 1] + images[m, 1] - pos[i, 1]
-    dz = pos[j, 2] + images[m, 2] - pos[i, 2]
+    """d_ij = (r_j − r_i) + S_m and |d_ij|² for pair (i, j) with image shift m.
+
+    In this order of operations d_ji = −d_ij bitwise (negation is exact), so a
+    pair at the cutoff is inside or outside for both of its atoms alike."""
+    dx = (pos[j, 0] - pos[i, 0]) + images[m, 0]
+    dy = (pos[j, 1] - pos[i, 1]) + images[m, 1]
+    dz = (pos[j, 2] - pos[i, 2]) + images[m, 2]
     return dx, dy, dz, dx * dx + dy * dy + dz * dz
 
 
@@ -144,18 +147,187 @@ def _pair_distances(positions, row, j, image, images, out):
 
 def _image_table(s, cell):
     """Distinct integer image shifts as a Cartesian table plus each pair's index
-    into it (a counting pass: np.unique over rows would sort every pair)."""
+    into it (a counting pass: np.unique over rows would sort every pair; it is
+    used only when the shifts span a range too wide to count, as for atoms far
+    outside a periodic cell)."""
     if len(s) == 0:
         return np.zeros((1, 3)), np.zeros(0, dtype=np.int16)
     lo = s.min(axis=0)
     span = s.max(axis=0) - lo + 1
-    key = ((s[:, 0] - lo[0]) * span[1] + (s[:, 1] - lo[1])) * span[2] + (s[:, 2] - lo[2])
-    present = np.flatnonzero(np.bincount(key, minlength=int(np.prod(span))))
-    lookup = np.zeros(int(np.prod(span)), dtype=np.int64)
-    lookup[present] = np.arange(len(present))
-    distinct = np.column_stack(np.unravel_index(present, tuple(span))) + lo
-    index_type = np.int16 if len(present) < 32768 else np.int32
-    return np.ascontiguousarray(distinct @ cell), lookup[key].astype(index_type)
+    if float(np.prod(span.astype(float))) <= 8.0 * len(s) + 4096:
+        key = ((s[:, 0] - lo[0]) * span[1] + (s[:, 1] - lo[1])) * span[2] + (s[:, 2] - lo[2])
+        present = np.flatnonzero(np.bincount(key, minlength=int(np.prod(span))))
+        lookup = np.zeros(int(np.prod(span)), dtype=np.int64)
+        lookup[present] = np.arange(len(present))
+        distinct = np.column_stack(np.unravel_index(present, tuple(span))) + lo
+        index = lookup[key]
+    else:
+        distinct, index = np.unique(s, axis=0, return_inverse=True)
+        index = index.reshape(-1)
+    index_type = np.int16 if len(distinct) < 32768 else np.int32
+    return np.ascontiguousarray(distinct @ cell), index.astype(index_type)
+
+
+def check_cell(cell, pbc):
+    """The cell as a float64 (3, 3) array and pbc as three bools, checked: finite,
+    and along periodic directions non-zero, independent vectors (a periodic
+    direction needs a period). Non-periodic directions may have zero vectors."""
+    from .validate import real_array
+
+    cell = real_array(cell, "cell")
+    if cell.shape != (3, 3):
+        cell = cell.reshape(3, 3) if cell.size == 9 else cell
+        if cell.shape != (3, 3):
+            raise ValueError(f"cell must be a 3x3 matrix, got shape {cell.shape}")
+    if not np.isfinite(cell).all():
+        raise ValueError(f"cell is not finite: {cell.tolist()}")
+    pbc = np.asarray(pbc)
+    if pbc.dtype.kind not in "bi" and pbc.dtype != object:
+        raise TypeError(f"pbc must be booleans, got {pbc!r}")
+    pbc = np.array([bool(x) for x in np.broadcast_to(pbc, (3,))])
+    periodic = np.flatnonzero(pbc)
+    if periodic.size:
+        names = "abc"
+        axes = "xyz"
+        for k in periodic:
+            if not np.any(cell[k]):
+                raise ValueError(
+                    f"pbc is True along {axes[k]} but cell vector {names[k]} is zero: give "
+                    f"the atoms a cell (atoms.cell = ...) or set pbc False along {axes[k]}")
+        vectors = cell[periodic]
+        sv = np.linalg.svd(vectors / np.abs(vectors).max(), compute_uv=False)
+        if sv.min() <= 1e-12 * sv.max():
+            raise ValueError(
+                f"the cell vectors {', '.join(names[k] for k in periodic)} of the periodic "
+                f"directions are linearly dependent (cell {cell.tolist()}): a periodic "
+                f"direction needs an independent cell vector")
+    return cell, pbc
+
+
+#: Refuse cells so small along periodic directions that each atom would see more
+#: periodic images of every other atom than this within the cutoff.
+MAX_IMAGES = 100_000
+
+# vesin's cell list (cpu_cell_list.cpp) caps its cells at 1e5 by a formula that
+# gives zero cells along a direction for very elongated boxes: it then divides by
+# zero (SIGFPE). Such boxes are searched by _sweep_pairs instead.
+_VESIN_MAX_CELLS = 1e5
+
+
+def _face_distances(cell, pbc):
+    """Distances between opposite faces of the cell along periodic directions."""
+    out = np.full(3, np.inf)
+    for k in np.flatnonzero(pbc):
+        a, b = cell[(k + 1) % 3], cell[(k + 2) % 3]
+        n = np.cross(a, b)
+        if pbc.sum() < 3 or not np.any(n):
+            # the other vectors may be open (zero): the period is the length of
+            # this vector's component normal to the other periodic vectors
+            others = cell[[p for p in np.flatnonzero(pbc) if p != k]]
+            v = cell[k].copy()
+            if len(others):
+                q, _ = np.linalg.qr(others.T)
+                v = v - q @ (q.T @ v)
+            out[k] = np.linalg.norm(v)
+        else:
+            out[k] = abs(np.dot(n / np.linalg.norm(n), cell[k]))
+    return out
+
+
+def _wrap(positions, cell, pbc):
+    """Positions moved into the cell along periodic directions, r − n·cell, and
+    the integer n of every atom (zero along open directions)."""
+    n = np.zeros((len(positions), 3), dtype=np.int64)
+    if not pbc.any() or len(positions) == 0:
+        return positions, n
+    periodic = np.flatnonzero(pbc)
+    # fractional coordinates along the periodic vectors (least squares handles
+    # zero or dependent open vectors)
+    frac = np.linalg.lstsq(cell[periodic].T, positions.T, rcond=None)[0].T
+    shift = np.floor(frac)
+    n[:, periodic] = shift.astype(np.int64)
+    if not n.any():
+        return positions, n
+    return positions - n[:, periodic] @ cell[periodic], n
+
+
+def _vesin_can(positions, cell, pbc, cutoff):
+    """Whether vesin's cell list will have at least one cell along every
+    direction (its own formula, see _VESIN_MAX_CELLS)."""
+    d = np.empty(3)
+    faces = _face_distances(cell, pbc) if pbc.any() else None
+    for k in range(3):
+        if pbc[k]:
+            d[k] = faces[k]
+        else:
+            lo, hi = (positions[:, k].min(), positions[:, k].max()) if len(positions) else (0, 0)
+            span = hi - lo if hi - lo >= 1e-6 else 1.0
+            d[k] = max(1.0, span * 1.01)
+    if not np.isfinite(d).all():
+        return False
+    n = np.maximum(np.trunc(d / cutoff), 1.0)
+    if n.prod() > _VESIN_MAX_CELLS:
+        rxy, ryz = n[0] / n[1], n[1] / n[2]
+        n2 = np.trunc(np.cbrt(_VESIN_MAX_CELLS / (rxy * ryz * ryz)))
+        n1 = np.trunc(ryz * n2)
+        n0 = np.trunc(rxy * n1)
+        n = np.array([n0, n1, n2])
+    return bool((n >= 1).all() and (n < 2**31).all())
+
+
+@nb.njit(cache=True)
+def _sweep_count_or_fill(order, x, pos, shifts, cut2, cut, i_out, j_out, m_out, fill):
+    """Pairs (i, j, m) with |(r_j − r_i) + T_m| < cut, by a sweep over atoms sorted
+    along x for each image shift T_m: memory O(N + pairs), whatever the extent."""
+    n = len(order)
+    count = 0
+    for m in range(shifts.shape[0]):
+        tx = shifts[m, 0]
+        start = 0
+        for a in range(n):
+            i = order[a]
+            xi = x[i] - tx  # atoms j with x_j + tx within cut of x_i
+            while start < n and x[order[start]] < xi - cut:
+                start += 1
+            b = start
+            while b < n and x[order[b]] <= xi + cut:
+                j = order[b]
+                b += 1
+                if i == j and shifts[m, 0] == 0.0 and shifts[m, 1] == 0.0 \
+                        and shifts[m, 2] == 0.0:
+                    continue
+                dx = (pos[j, 0] - pos[i, 0]) + shifts[m, 0]
+                dy = (pos[j, 1] - pos[i, 1]) + shifts[m, 1]
+                dz = (pos[j, 2] - pos[i, 2]) + shifts[m, 2]
+                if dx * dx + dy * dy + dz * dz < cut2:
+                    if fill:
+                        i_out[count] = i
+                        j_out[count] = j
+                        m_out[count] = m
+                    count += 1
+    return count
+
+
+def _sweep_pairs(positions, cell, pbc, cutoff):
+    """Full pair list (i, j, integer shifts) for boxes vesin cannot grid."""
+    periodic = np.flatnonzero(pbc)
+    reach = np.zeros(3, dtype=np.int64)
+    if periodic.size:
+        faces = _face_distances(cell, pbc)
+        reach[periodic] = np.ceil(cutoff / faces[periodic]).astype(np.int64)
+    grids = [np.arange(-r, r + 1) for r in reach]
+    ints = np.array(np.meshgrid(*grids, indexing="ij")).reshape(3, -1).T
+    shifts = np.ascontiguousarray(ints @ cell, dtype=float)
+    x = np.ascontiguousarray(positions[:, 0])
+    order = np.argsort(x, kind="stable")
+    empty = np.zeros(0, dtype=np.int64)
+    count = _sweep_count_or_fill(order, x, positions, shifts, cutoff * cutoff, cutoff,
+                                 empty, empty, empty, False)
+    i = np.empty(count, dtype=np.int64)
+    j = np.empty(count, dtype=np.int64)
+    m = np.empty(count, dtype=np.int64)
+    _sweep_count_or_fill(order, x, positions, shifts, cutoff * cutoff, cutoff, i, j, m, True)
+    return i, j, ints[m]
 
 
 @nb.njit(cache=True)
@@ -232,12 +404,10 @@ class NeighborCache:
         pbc = np.asarray(pbc, dtype=bool)
         if not self.needs_rebuild(positions, cell, pbc):
             return False
+        cell, pbc = check_cell(cell, pbc)
         n = len(positions)
         if n:
-            i, j, s = self._vesin.compute(positions, cell, pbc, "ijS", copy=False)
-            i = i.astype(np.int64)
-            j = j.astype(np.int64)
-            s = np.asarray(s, dtype=np.int64)
+            i, j, s = self._search(positions, cell, pbc)
         else:
             i = j = np.zeros(0, dtype=np.int64)
             s = np.zeros((0, 3), dtype=np.int64)
@@ -263,6 +433,36 @@ class NeighborCache:
         self._sublists = {}
         self.builds += 1
         return True
+
+    def _search(self, positions, cell, pbc):
+        """All pairs within cutoff + skin as (i, j, integer shifts S) with
+        d_ij = r_j + S·cell − r_i for the positions as given (unwrapped).
+
+        vesin searches positions wrapped into the cell (atoms any number of
+        cells away cost nothing extra); boxes too elongated for its cell list
+        (open directions with atoms far apart, a periodic vector of 1e8 Å) go
+        to a sweep over atoms sorted along x instead."""
+        reach = self.cutoff + self.skin
+        periodic = np.flatnonzero(pbc)
+        if periodic.size:
+            faces = _face_distances(cell, pbc)[periodic]
+            images = float(np.prod(2.0 * np.ceil(reach / faces) + 1.0))
+            if images > MAX_IMAGES:
+                raise ValueError(
+                    f"the cell is too small along its periodic directions for the cutoff "
+                    f"{reach:.3g} Å (distances between faces {faces.round(6).tolist()} Å): "
+                    f"each atom would see ~{images:.3g} periodic images of every other atom")
+        wrapped, shift = _wrap(positions, cell, pbc)
+        if _vesin_can(wrapped, cell, pbc, reach):
+            i, j, s = self._vesin.compute(wrapped, cell, pbc, "ijS", copy=False)
+            i = i.astype(np.int64)
+            j = j.astype(np.int64)
+            s = np.asarray(s, dtype=np.int64)
+        else:
+            i, j, s = _sweep_pairs(wrapped, cell, pbc, reach)
+        if shift.any():
+            s = s + shift[i] - shift[j]
+        return i, j, s
 
     def sublist(self, cutoff, mask=None, half=False):
         """Pairs within ``cutoff + skin`` at the last build, between atoms where

@@ -141,7 +141,7 @@ class ExchangeGeometry:
 
     For every pair k = (i → j) of ``pairs``: ``J[k] = J(r_ij)`` and
     ``G[k] = J'(r_ij) d_ij / r_ij`` with d_ij = r_j + S_ij − r_i; ``D`` holds
-    d_ij when a virial is wanted. J = G = 0 beyond the cutoff. Spins do not enter:
+    d_ij when a virial is wanted. J = G = 0 unless r² < rc² (LAMMPS's rule). Spins do not enter:
     it stays valid while only the spins change.
 
     ``Jbar`` (when asked for with ``mean_with``) is ½[J + J_other] with the J of
@@ -266,13 +266,14 @@ class Exchange(Term):
                                  Jbar)
             return geom
         i = pairs.i
-        d = positions[pairs.j] + pairs.shift - positions[i]
-        r = np.sqrt(np.einsum("ij,ij->i", d, d))
+        d = (positions[pairs.j] - positions[i]) + pairs.shift
+        r2 = np.einsum("ij,ij->i", d, d)
+        r = np.sqrt(r2)
         J = np.zeros(n)
         dJ = np.zeros(n)
         ti, tj = types[i], types[pairs.j]
         for a, b in zip(*np.nonzero(table[:, :, _FORM] != _OFF)):
-            sel = (ti == a) & (tj == b) & (r * r <= table[a, b, _RC2])
+            sel = (ti == a) & (tj == b) & (r2 < table[a, b, _RC2])
             J[sel], dJ[sel] = _user_values(couplings[a, b], r[sel])
         geom.J[:] = J
         geom.G[:] = (dJ / np.where(r > 0.0, r, 1.0))[:, None] * d
@@ -365,7 +366,7 @@ def _geometry_kernel(pos, row, nbr, image, images, types, table, J, G, D, want_d
                 D[k, 0] = dx
                 D[k, 1] = dy
                 D[k, 2] = dz
-            if r2 > table[ti, tj, _RC2]:
+            if r2 >= table[ti, tj, _RC2]:
                 Jk = 0.0
                 g = 0.0
             else:
@@ -391,7 +392,7 @@ def _geometry_single(pos, row, nbr, image, images, rc2, form, p0, p1, p2, J, G, 
                 D[k, 0] = dx
                 D[k, 1] = dy
                 D[k, 2] = dz
-            if r2 > rc2:
+            if r2 >= rc2:
                 Jk = 0.0
                 g = 0.0
             else:
@@ -602,7 +603,7 @@ def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B
                 j = nbr[k]
                 tj = types[j]
                 dx, dy, dz, r2 = separation(pos, images, i, j, image[k])
-                if r2 > table[ti, tj, _RC2]:
+                if r2 >= table[ti, tj, _RC2]:
                     continue
                 Jk, g = _coupling(table, ti, tj, r2)
                 ux = s[j, 0]
