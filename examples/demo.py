@@ -12,7 +12,7 @@ import time
 import numpy as np
 from ase import units
 from ase.build import bulk
-from ase.io import read
+from ase.io import Trajectory, read
 
 import ase_spin
 from ase_spin import BetheSlater, CollectivePRK, Exchange, LennardJones, SpinLatticeCalculator
@@ -43,7 +43,10 @@ print(f"mean |B| = |−∂E/∂s|   {np.linalg.norm(B, axis=1).mean():.6f} eV")
 print()
 
 # Spin–lattice dynamics: 0.1 fs steps, LAMMPS's precession convention (the default).
-dyn = CollectivePRK(atoms, timestep=0.1 * units.fs, trajectory="demo.traj",
+# Integrators never overwrite a trajectory (FileExistsError; append_trajectory=True continues
+# one): this demo opens its own output in write mode to start afresh each time it is run.
+trajectory = Trajectory("demo.traj", "w", atoms)
+dyn = CollectivePRK(atoms, timestep=0.1 * units.fs, trajectory=trajectory,
                     logfile="-", loginterval=50)
 t0 = time.perf_counter()
 dyn.run(50)  # the first call also compiles the kernels (cached on disk afterwards)
@@ -54,6 +57,7 @@ print(f"\n500 steps (50 fs): the first 50 in {t1 - t0:.2f} s (with compilation),
       f"in {elapsed:.2f} s: {elapsed / 450 / len(atoms) * 1e6:.2f} µs per atom-step, "
       f"{dyn.mean_iterations:.1f} midpoint sweeps per step")
 
+trajectory.close()
 spins = ase_spin.get_spins(atoms)
 print(f"spin lengths          max | |s| − 1 | = {np.abs(np.linalg.norm(spins, axis=1) - 1).max():.1e}")
 back = read("demo.traj", index=-1)

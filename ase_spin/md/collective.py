@@ -18,10 +18,11 @@ from ase.md.md import MolecularDynamics
 from .. import threads
 from ..calculator import SpinLatticeCalculator
 from ..hamiltonian import Want
+from ..io import check_trajectory_target
 from ..neighbors import max_displacement
 from ..spins import _name_atoms, split_moments
 from ..terms.exchange import ExchangeGeometry
-from ..validate import integer, positive_scalar, real_array, real_scalar
+from ..validate import flag, integer, positive_scalar, real_array, real_scalar
 from . import kernels
 from .compositions import composition_coefficients
 from .logger import SpinMDLogger
@@ -140,7 +141,9 @@ class CollectivePRK(MolecularDynamics):
         ``"frozen"`` integrates the spins only (as does fixing every atom with
         ``FixAtoms``); pair geometry is then computed once.
     trajectory, logfile, loginterval, **kwargs
-        As for every ASE ``MolecularDynamics``. The log is a
+        As for every ASE ``MolecularDynamics``, except that a ``trajectory`` file
+        name that exists is refused (FileExistsError) unless
+        ``append_trajectory=True``: see docs/restart.md. The log is a
         :class:`~ase_spin.md.logger.SpinMDLogger` line.
 
     Attributes
@@ -176,6 +179,8 @@ class CollectivePRK(MolecularDynamics):
                              f"(a change of a unit spin component), got {self.tol:g}")
         self.max_iter = 100 if max_iter is None else integer(max_iter, "max_iter", minimum=1)
         self.frozen_lattice = lattice == "frozen"
+        check_trajectory_target(trajectory, flag(kwargs.get("append_trajectory", False),
+                                                 "append_trajectory"))
         super().__init__(atoms, timestep, trajectory=trajectory, logfile=None,
                          loginterval=loginterval, **kwargs)
         if logfile:
