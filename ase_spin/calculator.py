@@ -51,7 +51,10 @@ class SpinLatticeCalculator(Calculator):
     def check_state(self, atoms, tol=1e-15):
         """ASE's comparison of the atoms, plus the term parameters: results
         computed before ``lj.epsilon = ...`` are not reused after it."""
-        changes = super().check_state(atoms, tol)
+        try:
+            changes = super().check_state(atoms, tol)
+        except TypeError:  # ASE's comparison fails on object arrays: treat as changed
+            changes = list(all_changes)
         if self._fingerprint != self.hamiltonian.fingerprint():
             changes.append("parameters")
         return changes

@@ -199,7 +199,7 @@ def check_cell(cell, pbc):
         if sv.min() <= 1e-12 * sv.max():
             raise ValueError(
                 f"the cell vectors {', '.join(names[k] for k in periodic)} of the periodic "
-                f"directions are linearly dependent (cell {cell.tolist()}): a periodic "
+                f"directions are linearly dependent or of wildly different lengths (cell {cell.tolist()}): a periodic "
                 f"direction needs an independent cell vector")
     return cell, pbc
 
@@ -234,6 +234,11 @@ def _face_distances(cell, pbc):
     return out
 
 
+#: Atoms farther than this many cells outside a periodic cell are refused: their
+#: coordinates (≳ 1e9 Å) resolve distances no better than ~1e-6 Å.
+_MAX_CELLS_AWAY = 2.0**31
+
+
 def _wrap(positions, cell, pbc):
     """Positions moved into the cell along periodic directions, r − n·cell, and
     the integer n of every atom (zero along open directions)."""
@@ -245,6 +250,13 @@ def _wrap(positions, cell, pbc):
     # zero or dependent open vectors)
     frac = np.linalg.lstsq(cell[periodic].T, positions.T, rcond=None)[0].T
     shift = np.floor(frac)
+    far = np.abs(shift) >= _MAX_CELLS_AWAY
+    if far.any():
+        atom, k = np.argwhere(far)[0]
+        raise ValueError(
+            f"atom {atom} lies {abs(frac[atom, k]):.3g} cells outside the periodic cell "
+            f"along cell vector {'abc'[periodic[k]]}: its position keeps no precision for "
+            f"distances at that range; wrap the atoms into the cell (atoms.wrap())")
     n[:, periodic] = shift.astype(np.int64)
     if not n.any():
         return positions, n

@@ -13,7 +13,11 @@ import numbers
 
 import numpy as np
 
-__all__ = ["real_array", "real_scalar", "positive_scalar", "flag", "integer", "robust_norm"]
+__all__ = ["real_array", "real_scalar", "positive_scalar", "length", "flag", "integer",
+           "robust_norm"]
+
+#: Lengths (Å) a parameter may take: squares and inverse squares stay finite.
+LENGTH_RANGE = (1e-100, 1e100)
 
 
 def _kind_error(what, value):
@@ -31,6 +35,16 @@ def real_array(value, what, shape=None):
     """
     if isinstance(value, (str, bytes)):
         raise _kind_error(what, value)
+    if not isinstance(value, np.ndarray):
+        # numpy turns [True, 0.5] or [1, "2"] silently into numbers or strings:
+        # look at the elements of Python sequences first
+        try:
+            elements = np.asarray(value, dtype=object).ravel()
+        except (ValueError, TypeError):
+            elements = ()
+        for v in elements:
+            if isinstance(v, (bool, np.bool_, str, bytes, complex)) or v is None:
+                raise _kind_error(what, v)
     try:
         arr = np.asarray(value)
     except (ValueError, TypeError) as err:  # ragged nested sequences
@@ -67,6 +81,16 @@ def positive_scalar(value, what):
     x = real_scalar(value, what)
     if not x > 0.0:
         raise ValueError(f"{what} must be positive, got {x}")
+    return x
+
+
+def length(value, what):
+    """A length in Å: finite, positive and within :data:`LENGTH_RANGE` (so that
+    r², 1/r² and the like neither overflow nor vanish)."""
+    x = positive_scalar(value, what)
+    lo, hi = LENGTH_RANGE
+    if not lo <= x <= hi:
+        raise ValueError(f"{what} must lie between {lo:g} and {hi:g} Å, got {x:g}")
     return x
 
 

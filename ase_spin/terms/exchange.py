@@ -8,7 +8,7 @@ import numpy as np
 from .. import threads
 from ..neighbors import balanced_chunks, reduce_threads, reduce_threads_serial, separation
 from ..threads import threaded
-from ..validate import flag, positive_scalar, real_scalar
+from ..validate import flag, length, real_scalar
 from .base import Parameterised, Term, is_pair_mapping, pair_values, resolve_pairs
 
 __all__ = ["Coupling", "BetheSlater", "Cubic", "Exchange", "ExchangeGeometry"]
@@ -68,7 +68,7 @@ class BetheSlater(Coupling):
     def __init__(self, J1, J2, J3):
         self.J1 = real_scalar(J1, "BetheSlater J1")
         self.J2 = real_scalar(J2, "BetheSlater J2")
-        self.J3 = positive_scalar(J3, "BetheSlater J3")
+        self.J3 = length(J3, "BetheSlater J3")
         # kernel parameters: J1, J2 and 1/J3² (a product per pair, not a division)
         self._params = (self.J1, self.J2, 1.0 / self.J3**2)
         self._finish()
@@ -101,7 +101,7 @@ class Cubic(Coupling):
 
     def __init__(self, J0, rc):
         self.J0 = real_scalar(J0, "Cubic J0")
-        self.rc = positive_scalar(rc, "Cubic rc")
+        self.rc = length(rc, "Cubic rc")
         self._params = (self.J0, self.rc, 1.0 / self.rc)
         self._finish()
 
@@ -201,8 +201,8 @@ class Exchange(Term):
                     "Exchange needs rc: a coupling without a cutoff of its own "
                     "(such as BetheSlater) was given"
                 )
-            rc = max(positive_scalar(r, "the coupling's rc") for r in own)
-        self.rc = positive_scalar(rc, "Exchange rc")
+            rc = max(length(r, "the coupling's rc") for r in own)
+        self.rc = length(rc, "Exchange rc")
         self.cutoff = self.rc
         self._finish()
 

@@ -8,7 +8,7 @@ import numpy as np
 from .. import threads
 from ..neighbors import balanced_chunks, reduce_threads, reduce_threads_serial, separation
 from ..threads import threaded
-from ..validate import positive_scalar
+from ..validate import length
 from .base import Term, is_pair_mapping, pair_values, real_or_none, resolve_pairs
 
 __all__ = ["LennardJones"]
@@ -19,8 +19,8 @@ _MODES = {"plain": _PLAIN, "shift": _SHIFT, "smooth": _SMOOTH}
 _RC2, _EPS4, _SIG2, _MODE, _E0, _RO2 = range(6)
 
 
-def _positive_or_none(value, what):
-    return None if value is None else positive_scalar(value, what)
+def _length_or_none(value, what):
+    return None if value is None else length(value, what)
 
 
 class LennardJones(Term):
@@ -68,8 +68,8 @@ class LennardJones(Term):
             raise ValueError(f"LennardJones cutoff must be one of {sorted(_MODES)}, "
                              f"got {cutoff!r}")
         self.epsilon = pair_values(epsilon, "LennardJones epsilon", real_or_none)
-        self.sigma = pair_values(sigma, "LennardJones sigma", _positive_or_none)
-        self.rc = pair_values(rc, "LennardJones rc", positive_scalar)
+        self.sigma = pair_values(sigma, "LennardJones sigma", _length_or_none)
+        self.rc = pair_values(rc, "LennardJones rc", length)
         self.r_on = pair_values(r_on, "LennardJones r_on", real_or_none)
         self.mode = cutoff
         if (self.sigma is None and not is_pair_mapping(self.epsilon)
@@ -108,9 +108,15 @@ class LennardJones(Term):
                 ro = 0.66 * rc if ro is None else float(ro)
                 if self.mode == "smooth" and not 0.0 <= ro < rc:
                     raise ValueError(f"LennardJones: need 0 <= r_on < rc, got r_on={ro}, rc={rc}")
-                sr6 = (s / rc) ** 6
-                table[a, b] = (rc * rc, 4.0 * e, s * s, _MODES[self.mode],
-                               4.0 * e * (sr6 * sr6 - sr6), ro * ro)
+                with np.errstate(over="ignore", invalid="ignore"):
+                    sr6 = (np.float64(s) / rc) ** 6
+                    row = (rc * rc, 4.0 * e, s * s, _MODES[self.mode],
+                           4.0 * e * (sr6 * sr6 - sr6), ro * ro)
+                if not np.isfinite(row).all():
+                    raise ValueError(
+                        f"LennardJones {symbols[a]}-{symbols[b]}: epsilon={e}, sigma={s}, "
+                        f"rc={rc} overflow (4ε(σ/rc)¹² is not finite)")
+                table[a, b] = row
         return table
 
     def compute(self, positions, pairs, types, table, forces, energies, want):
