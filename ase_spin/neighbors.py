@@ -257,9 +257,12 @@ def _wrap(positions, cell, pbc):
             f"atom {atom} lies {abs(frac[atom, k]):.3g} cells outside the periodic cell "
             f"along cell vector {'abc'[periodic[k]]}: its position keeps no precision for "
             f"distances at that range; wrap the atoms into the cell (atoms.wrap())")
-    n[:, periodic] = shift.astype(np.int64)
-    if not n.any():
+    # vesin itself places atoms a cell or two outside (without this copy and the
+    # shift correction of every pair); only atoms farther out are moved here
+    shift[np.abs(shift) <= 2.0] = 0.0
+    if not shift.any():
         return positions, n
+    n[:, periodic] = shift.astype(np.int64)
     return positions - n[:, periodic] @ cell[periodic], n
 
 

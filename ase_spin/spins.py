@@ -150,7 +150,8 @@ def split_moments(moments):
     unit = np.zeros(moments.shape)
     unit[mag] = scaled / norm[:, None]
     mu = np.zeros(len(moments))
-    mu[mag] = largest[mag] * norm
+    with np.errstate(over="ignore"):  # |v| > 1.8e308: inf, refused by the callers' range check
+        mu[mag] = largest[mag] * norm
     return unit, mu
 
 
