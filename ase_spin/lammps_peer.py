@@ -14,16 +14,17 @@ atom i+1 in LAMMPS.
 
 from __future__ import annotations
 
-import math
 import os
 import tempfile
 
 import numpy as np
 
+from .constants import LAMMPS_HBAR_EV_PS
+
 __all__ = ["lammps_available", "LammpsSpin", "LAMMPS_HBAR", "LAMMPS_NKTV2P"]
 
 #: ħ of LAMMPS metal units, eV·ps (hplanck / 2π).
-LAMMPS_HBAR = 4.135667403e-3 / (2.0 * math.pi)
+LAMMPS_HBAR = LAMMPS_HBAR_EV_PS  # eV·ps
 #: LAMMPS metal units: pressure (bar) per eV/Å³.
 LAMMPS_NKTV2P = 1.6021765e6
 

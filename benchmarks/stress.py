@@ -65,7 +65,7 @@ def main(argv=None):
     print(describe())
     print(f"# fcc Co, {4 * n**3} atoms, {steps} steps per case")
     for dt in (0.5, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0):
-        run_case(f"dt sweep, 100 K", fcc_cobalt(n), dt, steps)
+        run_case("dt sweep, 100 K", fcc_cobalt(n), dt, steps)
     for frozen_dt in (4.0, 6.0, 8.0):
         atoms = fcc_cobalt(n)
         dyn = CollectivePRK(atoms, frozen_dt * units.fs, lattice="frozen")

@@ -152,7 +152,8 @@ def run_case(case):
             return "silent-wrong", f"check raised {type(err).__name__}: {err}"
         if not ok:
             return "silent-wrong", f"check failed, result {str(result)[:100]}"
-    return "ok-result", "finite"
+    return "ok-result", (json.dumps(result) if isinstance(result, dict)
+                         and "points" in result else "finite")
 
 
 # -- the families -------------------------------------------------------------------
@@ -845,6 +846,7 @@ def run_isolated(family, quick=False, timeout=1800):
 def campaign(quick=False, only=None, isolated=True):
     table = defaultdict(Counter)
     findings = []
+    reports = []  # what the interrupt cases covered
     for family, cases in families(quick).items():
         if only and family not in only:
             continue
@@ -856,7 +858,9 @@ def campaign(quick=False, only=None, isolated=True):
             table[family][verdict] += 1
             if verdict not in ("ok-error", "ok-result"):
                 findings.append((family, name, verdict, detail))
-    return table, findings
+            elif detail.startswith("{"):
+                reports.append((family, name, verdict, detail))
+    return table, findings, reports
 
 
 def main(argv=None):
@@ -866,7 +870,7 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="the default test run's subset")
     parser.add_argument("--family", nargs="*", help="only these families")
     args = parser.parse_args(argv)
-    table, findings = campaign(args.quick, args.family)
+    table, findings, reports = campaign(args.quick, args.family)
     width = max(len(f) for f in table) if table else 6
     print(f"{'family':<{width}} " + " ".join(f"{v:>13}" for v in VERDICTS) + "   total")
     totals = Counter()
@@ -878,6 +882,8 @@ def main(argv=None):
           + f"   {sum(totals.values()):>5}")
     for family, name, verdict, detail in findings:
         print(f"[{verdict}] {family}: {name}: {detail}")
+    for family, name, verdict, detail in reports:
+        print(f"{family}: {name}: {detail}")
     return 1 if findings else 0
 
 

@@ -7,7 +7,6 @@ Run with the MPI library on the path, e.g.
 import numpy as np
 import pytest
 from ase.build import bulk
-from ase.md.velocitydistribution import MaxwellBoltzmannDistribution
 
 import ase_spin
 from ase_spin.lammps_peer import LammpsSpin, lammps_available

@@ -4,9 +4,9 @@ import io
 
 import numpy as np
 import pytest
-from ase import Atoms, units
+from ase import units
 from ase.constraints import FixAtoms
-from ase.io import Trajectory, read
+from ase.io import read
 from ase.md.verlet import VelocityVerlet
 
 import ase_spin

@@ -11,7 +11,7 @@ from ase.build import bulk
 from ase.constraints import FixAtoms
 
 import ase_spin
-from ase_spin import (BetheSlater, CollectivePRK, Exchange, IntegrationError, LennardJones,
+from ase_spin import (BetheSlater, CollectivePRK, Exchange, LennardJones,
                       SpinConvergenceError, SpinLatticeCalculator, SuzukiTrotter,
                       UnstableStepError)
 

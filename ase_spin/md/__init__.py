@@ -1,9 +1,10 @@
 """Integrators for spin–lattice dynamics (ASE ``MolecularDynamics``)."""
 
-from .collective import (HBAR, CollectivePRK, IntegrationError, SpinConvergenceError,
-                         UnstableStepError)
+from .base import (HBAR, IntegrationError, SpinConvergenceError, SpinLatticeDynamics,
+                   UnstableStepError)
+from .collective import CollectivePRK
 from .compositions import COMPOSITIONS
 from .logger import SpinMDLogger
 from .splitting import SuzukiTrotter
 
-__all__ = ["CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError", "SpinMDLogger", "SuzukiTrotter", "HBAR", "COMPOSITIONS"]
+__all__ = ["SpinLatticeDynamics", "CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError", "SpinMDLogger", "SuzukiTrotter", "HBAR", "COMPOSITIONS"]

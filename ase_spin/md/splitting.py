@@ -15,7 +15,7 @@ import numpy as np
 from ase import units
 
 from . import kernels
-from .collective import CollectivePRK, UnstableStepError
+from .base import SpinLatticeDynamics, UnstableStepError
 
 #: Largest rotation (rad) of one spin in one sweep before the step is refused:
 #: far beyond it the splitting is meaningless (the Cayley rotation saturates at π).
@@ -24,7 +24,7 @@ MAX_SWEEP_ROTATION = 1.0
 __all__ = ["SuzukiTrotter"]
 
 
-class SuzukiTrotter(CollectivePRK):
+class SuzukiTrotter(SpinLatticeDynamics):
     r"""Spin–lattice dynamics by the symmetric splitting LAMMPS ``fix nve/spin`` uses.
 
     One step of size h, for the same equations of motion as
@@ -56,7 +56,7 @@ class SuzukiTrotter(CollectivePRK):
 
     def __init__(self, atoms, timestep, *, hbar=None, precession="moment", rotation="cayley",
                  order=2, composition=None, lattice="moving", **kwargs):
-        if rotation not in ("cayley", "exact"):
+        if not isinstance(rotation, str) or rotation not in ("cayley", "exact"):
             raise ValueError(f'rotation must be "cayley" or "exact", got {rotation!r}')
         self.rotation = rotation
         super().__init__(atoms, timestep, hbar=hbar, precession=precession, order=order,
@@ -64,6 +64,9 @@ class SuzukiTrotter(CollectivePRK):
 
     def todict(self):
         return {**super().todict(), "rotation": self.rotation}
+
+    def _prepare(self, st):
+        st.end_forces = None
 
     def _substep(self, h, stage, want_energy):
         st = self._state
@@ -77,24 +80,21 @@ class SuzukiTrotter(CollectivePRK):
             self._spin_half_step(st.Gq[0], h)
             return 0, 0
         ev = self.ev
-        cached = getattr(self, "_end_forces", None)
-        if cached is not None and cached[0] is st:
-            F = cached[1]  # F(q, s) from the end of the last (sub)step
-        else:
-            F = self._exchange_forces(st.Gq, st.s, st.FL)
+        # F(q, s) from the end of the last (sub)step, else computed
+        F = st.end_forces if st.end_forces is not None else self._spin_forces(st.Gq, st.s,
+                                                                              st.FL)
         P = np.empty_like(st.p)
-        kernels.kick(st.p, 0.5 * h, self._md_forces(F, st.q), st.carry_p, P, self._carry_mid)
+        kernels.kick(st.p, 0.5 * h, self._md_forces(F, st.q), st.carry_p, P, st.carry_mid)
         self._spin_half_step(st.Gq[0], h)
-        qt, P = self._drift(st.q, P, h)
-        st.carry_q = self._carry_q_new
+        qt, P, st.carry_q = self._drift(st.q, P, h)
         self._check_displacement(st.q, qt, h)
         st.Gq = ev.exchange_geometry(qt, out=st.Gq, half=False)
         self._spin_half_step(st.Gq[0], h)
         self._lattice_at(qt, want_energy)
-        F = self._exchange_forces(st.Gq, st.s, st.FL)
-        kernels.kick(P, 0.5 * h, self._md_forces(F, qt), self._carry_mid, P, st.carry_p)
+        F = self._spin_forces(st.Gq, st.s, st.FL)
+        kernels.kick(P, 0.5 * h, self._md_forces(F, qt), st.carry_mid, P, st.carry_p)
         st.q, st.p = qt, self._adjust_momenta(P, qt)
-        self._end_forces = (st, F)
+        st.end_forces = F
         return 0, 1
 
     def _spin_half_step(self, geom, h):
