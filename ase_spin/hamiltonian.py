@@ -91,6 +91,11 @@ class Hamiltonian:
         return [t for t in self.terms if not t.spin_dependent]
 
     @property
+    def spin_term_names(self):
+        """Names (keys of the energy by term) of the spin-dependent terms."""
+        return [n for t, n in zip(self.terms, self.term_names) if t.spin_dependent]
+
+    @property
     def spin_terms(self):
         return [t for t in self.terms if t.spin_dependent]
 
@@ -130,8 +135,9 @@ class Evaluator:
     The fast path for integrators:
 
     - :meth:`lattice` — energy / forces / virial of the spin-independent terms;
-    - :meth:`exchange_geometry` — pair geometry (J(r_ij), J'(r_ij) d_ij/r_ij) of
-      every spin term at given positions;
+    - :meth:`spin_geometry` — what every spin term caches at given positions so
+      that its magnetic forces for any spins cost one pass (for exchange: the
+      pair geometry J(r_ij), J'(r_ij) d_ij/r_ij);
     - :meth:`spin` — magnetic forces, exchange forces and energy for given spins
       from such a geometry, without touching distances again;
     - :meth:`evaluate` — all of it at once (what the ASE calculator calls).
@@ -221,7 +227,7 @@ class Evaluator:
         return ev
 
     @_sized
-    def exchange_geometry(self, positions, virial=False, out=None, mean_with=None, half=False):
+    def spin_geometry(self, positions, virial=False, out=None, mean_with=None, half=False):
         """Pair geometry of every spin term at ``positions`` (a list, one per
         spin term); ``out`` is a previous result whose arrays are reused;
         ``mean_with`` a result on the same pair lists whose couplings are

@@ -239,7 +239,7 @@ def test_log_lines():
     dyn = CollectivePRK(atoms, 1.0 * units.fs, logfile=log, loginterval=2)
     dyn.run(4)
     lines = log.getvalue().splitlines()
-    assert lines[0].split() == ["Time[ps]", "Etot[eV]", "Epot[eV]", "Ekin[eV]", "Eex[eV]",
+    assert lines[0].split() == ["Time[ps]", "Etot[eV]", "Epot[eV]", "Ekin[eV]", "Emag[eV]",
                                 "T[K]", "|M|", "Ts[K]", "iter"]
     assert len(lines) == 1 + 3  # steps 0, 2, 4
     last = [float(x) for x in lines[-1].split()]

@@ -160,7 +160,7 @@ class SpinLatticeDynamics(MolecularDynamics):
                    carry_q=np.zeros_like(q), carry_p=np.zeros_like(q),
                    carry_s=np.zeros_like(q), carry_mid=np.zeros_like(q))
         st.FL = np.zeros_like(q) if self.frozen else ev.lattice(q, _FORCES).forces
-        st.Gq = ev.exchange_geometry(q, half=self.half_lists) if self.magnetic else None
+        st.Gq = ev.spin_geometry(q, half=self.half_lists) if self.magnetic else None
         self._prepare(st)
         self._state = st
         self._remember_written()
@@ -446,6 +446,11 @@ class SpinLatticeDynamics(MolecularDynamics):
     def get_energy_terms(self):
         """Potential energy by term (eV), at the current state."""
         return dict(self._observables()["terms"])
+
+    def get_magnetic_energy(self):
+        """Energy of the spin-dependent terms (eV), at the current state."""
+        terms = self._observables()["terms"]
+        return float(sum(terms[k] for k in self.ev.hamiltonian.spin_term_names))
 
     def get_potential_energy(self):
         obs = self._observables()

@@ -155,8 +155,8 @@ class CollectivePRK(SpinLatticeDynamics):
             elif kernels.max_abs_difference(qt, qt_used) <= qtol:
                 break
             if ev.refresh(qt):  # a new pair list: G(q) must use it too
-                st.Gq = ev.exchange_geometry(q, half=self.half_lists)
-            st.Gqt = ev.exchange_geometry(qt, out=st.Gqt, mean_with=st.Gq,
+                st.Gq = ev.spin_geometry(q, half=self.half_lists)
+            st.Gqt = ev.spin_geometry(qt, out=st.Gqt, mean_with=st.Gq,
                                           half=self.half_lists)
             geometries += 1
             W, s_new, its, moved, carry_s = self._solve(s, st.Gqt, W, h, stage)

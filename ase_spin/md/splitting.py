@@ -88,7 +88,7 @@ class SuzukiTrotter(SpinLatticeDynamics):
         self._spin_half_step(st.Gq[0], h)
         qt, P, st.carry_q = self._drift(st.q, P, h)
         self._check_displacement(st.q, qt, h)
-        st.Gq = ev.exchange_geometry(qt, out=st.Gq, half=False)
+        st.Gq = ev.spin_geometry(qt, out=st.Gq, half=False)
         self._spin_half_step(st.Gq[0], h)
         self._lattice_at(qt, want_energy)
         F = self._spin_forces(st.Gq, st.s, st.FL)
