@@ -2,8 +2,10 @@
 
 from .calculator import SpinLatticeCalculator
 from .hamiltonian import AtomsTooCloseError, Evaluator, Hamiltonian, Want
-from .md import (HBAR, CollectivePRK, IntegrationError, SpinConvergenceError, SpinMDLogger,
-                 SuzukiTrotter, UnstableStepError)
+from .constants import HBAR_LAMMPS
+from .io import complete_frames, recover_trajectory
+from .md import (HBAR, CollectivePRK, IntegrationError, SpinConvergenceError,
+                 SpinLatticeDynamics, SpinMDLogger, SuzukiTrotter, UnstableStepError)
 from .spins import get_moments, get_spins, set_spins
 from .terms import BetheSlater, Coupling, Cubic, Exchange, LennardJones, Term
 
@@ -12,7 +14,8 @@ __version__ = "0.1.0"
 __all__ = [
     "SpinLatticeCalculator", "Hamiltonian", "Evaluator", "Want", "AtomsTooCloseError",
     "set_spins", "get_spins", "get_moments",
-    "CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError",
-    "SpinMDLogger", "SuzukiTrotter", "HBAR",
+    "CollectivePRK", "SuzukiTrotter", "SpinLatticeDynamics", "IntegrationError",
+    "SpinConvergenceError", "UnstableStepError", "SpinMDLogger", "HBAR", "HBAR_LAMMPS",
+    "recover_trajectory", "complete_frames",
     "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic",
 ]

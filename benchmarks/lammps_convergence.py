@@ -23,12 +23,12 @@ sys.path.insert(0, os.path.dirname(__file__))
 
 import ase_spin  # noqa: E402
 from ase_spin import CollectivePRK  # noqa: E402
-from ase_spin.lammps_peer import LAMMPS_HBAR, LammpsSpin, lammps_available  # noqa: E402
+from ase_spin.lammps_peer import LammpsSpin, lammps_available  # noqa: E402
 from ase_spin.md.ode import reference_solution  # noqa: E402
 from ase_spin.scenes import fcc_cobalt  # noqa: E402
 
 #: LAMMPS's ħ (eV·ps) in eV·(ASE time)
-HBAR_LAMMPS_ASE = LAMMPS_HBAR * 1000.0 * units.fs
+HBAR_LAMMPS_ASE = ase_spin.HBAR_LAMMPS
 LJ = (0.4, 2.2742, 4.7, True)
 EXCHANGE = (0.0446928, 0.003496, 1.4885, 4.0, False)
 

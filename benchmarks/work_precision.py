@@ -28,12 +28,12 @@ sys.path.insert(0, os.path.dirname(__file__))
 
 import ase_spin  # noqa: E402
 from ase_spin import CollectivePRK, SuzukiTrotter  # noqa: E402
-from ase_spin.lammps_peer import LAMMPS_HBAR, LammpsSpin, lammps_available  # noqa: E402
+from ase_spin.lammps_peer import LammpsSpin, lammps_available  # noqa: E402
 from ase_spin.md.ode import reference_solution  # noqa: E402
 from ase_spin.scenes import fcc_cobalt, paper_chain  # noqa: E402
 from machine import describe  # noqa: E402
 
-HBAR_LAMMPS = LAMMPS_HBAR * 1000.0 * units.fs
+HBAR_LAMMPS = ase_spin.HBAR_LAMMPS
 #: LAMMPS metal units turn force/mass into acceleration with 1/1.0364269e-4
 #: (Å/ps² per eV/Å/amu), 5.5e-8 off the CODATA value: masses × this ratio here.
 MASS_RATIO = (1000.0 * units.fs) ** 2 * 1.0364269e-4

@@ -48,7 +48,7 @@ def test_trajectory_converges_to_the_same_limit_as_lammps():
     from ase_spin.md.ode import reference_solution
     from ase_spin.scenes import fcc_cobalt
 
-    hbar = ase_spin.lammps_peer.LAMMPS_HBAR * 1000.0 * units.fs
+    hbar = ase_spin.HBAR_LAMMPS
     t_fs = 10.0
     xr, _, sr = reference_solution(fcc_cobalt(2), t_fs * units.fs, hbar=hbar)
     rows = []
@@ -80,7 +80,7 @@ def test_suzuki_trotter_follows_lammps_step_for_step():
 
     from ase_spin.scenes import fcc_cobalt
 
-    hbar = ase_spin.lammps_peer.LAMMPS_HBAR * 1000.0 * units.fs
+    hbar = ase_spin.HBAR_LAMMPS
     ratio = (1000.0 * units.fs) ** 2 * 1.0364269e-4
     for lattice in ("moving", "frozen"):
         atoms = fcc_cobalt(3)
