@@ -69,20 +69,20 @@ class SpinLatticeCalculator(Calculator):
 
     def bound_evaluator(self, atoms):
         """The :class:`Evaluator` for ``atoms``, rebuilt only when species,
-        cell, periodicity or the set of magnetic atoms changed."""
+        cell, periodicity or moment magnitudes changed."""
         moments = get_moments(atoms)
-        magnetic = np.linalg.norm(moments, axis=1) > 0.0
+        _, mu = split_moments(moments)
         ev = self.evaluator
         if ev is None or ev.stale() or not np.array_equal(self._numbers, atoms.numbers):
             ev = self.evaluator = self.hamiltonian.bind(
-                atoms.numbers, atoms.cell.array, atoms.pbc, magnetic)
+                atoms.numbers, atoms.cell.array, atoms.pbc, mu)
             self._numbers = atoms.numbers.copy()
         else:
             if not (np.array_equal(ev.cell, atoms.cell.array)
                     and np.array_equal(ev.pbc, atoms.pbc)):
                 ev.set_cell(atoms.cell.array, atoms.pbc)
-            if not np.array_equal(ev.magnetic, magnetic):
-                ev.set_magnetic(magnetic)
+            if not np.array_equal(ev.moments, mu):
+                ev.set_moments(mu)
         return ev, moments
 
     def calculate(self, atoms=None, properties=("energy",), system_changes=all_changes):

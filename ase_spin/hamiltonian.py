@@ -21,7 +21,7 @@ import numpy as np
 
 from .neighbors import NeighborCache
 from .threads import threads_for
-from .terms.base import Species, Term, parameter_generation
+from .terms.base import Species, System, Term, parameter_generation
 from .validate import real_scalar
 
 __all__ = ["Hamiltonian", "Evaluator", "Want", "Evaluation", "AtomsTooCloseError"]
@@ -79,7 +79,8 @@ class Hamiltonian:
             n if names.count(n) == 1 else f"{n}_{names[:k].count(n)}"
             for k, n in enumerate(names)
         ]
-        self.cutoff = max(t.cutoff for t in terms)
+        #: range of the neighbour list (0: no term needs pairs, none is built)
+        self.cutoff = max((t.cutoff for t in terms if t.neighbor_list), default=0.0)
 
     def fingerprint(self):
         """Changes whenever a parameter of a term (or of a coupling in it) is
@@ -99,10 +100,11 @@ class Hamiltonian:
     def spin_terms(self):
         return [t for t in self.terms if t.spin_dependent]
 
-    def bind(self, numbers, cell, pbc, magnetic):
+    def bind(self, numbers, cell, pbc, moments):
         """An :class:`Evaluator` for a system with these atomic numbers (or
-        symbols), cell, periodicity and magnetic-atom mask."""
-        return Evaluator(self, numbers, cell, pbc, magnetic)
+        symbols), cell, periodicity and moment magnitudes μ_i (μB; zero for a
+        non-magnetic atom; a boolean mask means 1 μB on the True atoms)."""
+        return Evaluator(self, numbers, cell, pbc, moments)
 
     def __repr__(self):
         return f"Hamiltonian({self.terms!r}, skin={self.skin})"
@@ -135,11 +137,12 @@ class Evaluator:
     The fast path for integrators:
 
     - :meth:`lattice` — energy / forces / virial of the spin-independent terms;
-    - :meth:`spin_geometry` — what every spin term caches at given positions so
-      that its magnetic forces for any spins cost one pass (for exchange: the
-      pair geometry J(r_ij), J'(r_ij) d_ij/r_ij);
-    - :meth:`spin` — magnetic forces, exchange forces and energy for given spins
-      from such a geometry, without touching distances again;
+    - :meth:`spin_operators` — every spin term prepared at given positions, as
+      a :class:`~ase_spin.terms.base.SpinOperator` whose magnetic forces for any
+      spins cost one pass (for exchange: the pair geometry J(r_ij),
+      J'(r_ij) d_ij/r_ij is cached in it; single-site terms need nothing);
+    - :meth:`spin` — magnetic forces, lattice forces and energy of the spin
+      terms for given spins from such operators, without touching distances;
     - :meth:`evaluate` — all of it at once (what the ASE calculator calls).
 
     Positions are (N, 3) Cartesian Å; spins are (N, 3) unit directions with zero
@@ -147,18 +150,20 @@ class Evaluator:
     is called by the methods that take positions.
     """
 
-    def __init__(self, hamiltonian, numbers, cell, pbc, magnetic):
+    def __init__(self, hamiltonian, numbers, cell, pbc, moments):
         self.hamiltonian = hamiltonian
         self.species = Species.from_symbols(_symbols(numbers))
         self.types = self.species.types
         self.natoms = len(self.types)
         self._generation = parameter_generation()
         self._fingerprint = hamiltonian.fingerprint()
-        self._tables = [t.bind(self.species) for t in hamiltonian.terms]
-        self.neighbors = NeighborCache(hamiltonian.cutoff, hamiltonian.skin)
+        # a scene whose terms need no pairs (single-site terms only) builds no list
+        self.neighbors = (NeighborCache(hamiltonian.cutoff, hamiltonian.skin)
+                          if hamiltonian.cutoff > 0.0 else None)
         self._changes = 0
-        self.set_cell(cell, pbc)
-        self.set_magnetic(magnetic)
+        self.cell = self.pbc = self.moments = None
+        self.set_cell(cell, pbc, bind=False)
+        self.set_moments(moments)
 
     def stale(self):
         """True if a parameter of the Hamiltonian changed since this was bound
@@ -173,32 +178,55 @@ class Evaluator:
 
     @property
     def state_token(self):
-        """Changes whenever the cell, periodicity, magnetic atoms or pair list
-        change: what a holder of cached pair geometry compares."""
-        return (self._changes, self.neighbors.builds)
+        """Changes whenever the cell, periodicity, moments or pair list change:
+        what a holder of prepared operators compares."""
+        return (self._changes, 0 if self.neighbors is None else self.neighbors.builds)
 
     # -- system state -----------------------------------------------------
-    def set_cell(self, cell, pbc):
+    def set_cell(self, cell, pbc, bind=True):
         self.cell = np.array(cell, dtype=float).reshape(3, 3)
         self.pbc = np.array(pbc, dtype=bool).reshape(3) if np.ndim(pbc) else np.array([pbc] * 3)
-        self.neighbors.invalidate()
+        if self.neighbors is not None:
+            self.neighbors.invalidate()
         self._changes += 1
+        if bind:
+            self._bind()
+
+    def set_moments(self, moments):
+        """Moment magnitudes μ_i (μB, zero: non-magnetic; a boolean mask: 1 μB)."""
+        moments = np.asarray(moments)
+        if moments.shape != (self.natoms,):
+            raise ValueError(f"moments must have shape ({self.natoms},), got {moments.shape}")
+        self.moments = np.array(moments, dtype=float)
+        self.magnetic = self.moments > 0.0
+        self.any_magnetic = bool(self.magnetic.any())
+        self._changes += 1
+        self._bind()
 
     def set_magnetic(self, magnetic):
-        magnetic = np.asarray(magnetic, dtype=bool)
-        if magnetic.shape != (self.natoms,):
-            raise ValueError(f"magnetic mask must have shape ({self.natoms},)")
-        self.magnetic = magnetic.copy()
-        self.any_magnetic = bool(magnetic.any())
-        self._changes += 1
+        """Set which atoms are magnetic (a boolean mask, 1 μB each)."""
+        self.set_moments(np.asarray(magnetic, dtype=bool))
+
+    def _bind(self):
+        self.system = System(self.species, self.moments, self.cell, self.pbc)
+        self._tables = [t.bind(self.system) for t in self.hamiltonian.terms]
 
     def refresh(self, positions):
         """Make the pair lists valid for ``positions``; True if rebuilt."""
+        if self.neighbors is None:
+            return False
         return self.neighbors.update(positions, self.cell, self.pbc)
 
     def _pairs(self, term, half=False):
+        if not term.neighbor_list:
+            return None
         mask = self.magnetic if term.spin_dependent else None
         return self.neighbors.sublist(term.cutoff, mask, half)
+
+    @property
+    def skin(self):
+        """The neighbour list's skin (Å); inf without a list (nothing to outrun)."""
+        return np.inf if self.neighbors is None else self.neighbors.skin
 
     @property
     def volume(self):
@@ -227,31 +255,32 @@ class Evaluator:
         return ev
 
     @_sized
-    def spin_geometry(self, positions, virial=False, out=None, mean_with=None, half=False):
-        """Pair geometry of every spin term at ``positions`` (a list, one per
-        spin term); ``out`` is a previous result whose arrays are reused;
-        ``mean_with`` a result on the same pair lists whose couplings are
-        averaged with these into each geometry's ``Jbar``. ``half``: on the
-        half pair list (each pair once: half the work and memory; passes over it
-        scatter into per-thread buffers)."""
+    def spin_operators(self, positions, virial=False, out=None, mean_with=None, half=False):
+        """Every spin term prepared at ``positions`` (a list of
+        :class:`~ase_spin.terms.base.SpinOperator`, one per spin term).
+        ``out``: a previous result whose buffers are reused; ``mean_with``: the
+        operators at the other end of a step, on the same pair lists, for the
+        midpoint field ``field(W, out, mean=True)``. ``half``: pair terms on the
+        half pair list (each pair once: half the work and memory; passes over
+        it scatter into per-thread buffers) rather than the full one."""
         positions = _as_positions(positions, self.natoms)
         self.refresh(positions)
-        geoms = []
+        ops = []
         k = 0
         for t, table in zip(self.hamiltonian.terms, self._tables):
             if not t.spin_dependent:
                 continue
             previous = out[k] if out is not None else None
             other = mean_with[k] if mean_with is not None else None
-            geoms.append(t.geometry(positions, self._pairs(t, half=half), self.types, table,
-                                    virial=virial, out=previous, mean_with=other))
+            ops.append(t.prepare(positions, self._pairs(t, half=half), self.types, table,
+                                 virial=virial, out=previous, mean_with=other))
             k += 1
-        return geoms
+        return ops
 
     @_sized
-    def spin(self, geometries, spins, want, magnetic_forces=None, forces=None,
+    def spin(self, operators, spins, want, magnetic_forces=None, forces=None,
              energies=None):
-        """Spin-dependent terms for unit ``spins`` from cached ``geometries``.
+        """Spin-dependent terms for unit ``spins`` from prepared ``operators``.
 
         Magnetic forces B_i = −∂E/∂s_i (eV), forces, energies are *added* into
         the given arrays when given, else returned in new arrays.
@@ -261,12 +290,10 @@ class Evaluator:
             ev.magnetic_forces = (np.zeros((self.natoms, 3)) if magnetic_forces is None
                                   else magnetic_forces)
         b = ev.magnetic_forces if want.magnetic_forces else _NO_ARRAY
-        spin_terms = [(t, n) for t, n in zip(self.hamiltonian.terms,
-                                             self.hamiltonian.term_names) if t.spin_dependent]
-        for (t, name), geom in zip(spin_terms, geometries):
-            e, w = t.spin_pass(geom, spins, b,
-                               ev.forces if want.forces else _NO_ARRAY,
-                               ev.energies if want.energies else _NO_ENERGIES, want)
+        f = ev.forces if want.forces else _NO_ARRAY
+        energies = ev.energies if want.energies else _NO_ENERGIES
+        for name, op in zip(self.hamiltonian.spin_term_names, operators):
+            e, w = op.add(spins, want, b, f, energies)
             _accumulate(ev, name, e, w, want)
         return ev
 
@@ -286,8 +313,8 @@ class Evaluator:
             for t, name, table in zip(self.hamiltonian.terms, self.hamiltonian.term_names,
                                       self._tables):
                 if t.spin_dependent:
-                    e, w = t.compute(positions, self._pairs(t, half=True), self._pairs(t),
-                                     self.types, table, spins, b, f, energies, want)
+                    e, w = t.compute(positions, self._pairs(t, half=True), self.types,
+                                     table, spins, b, f, energies, want)
                     _accumulate(ev, name, e, w, want)
             _check_finite(ev, positions, self.neighbors)
         if want.energy:
@@ -344,7 +371,7 @@ def _check_finite(ev, positions, neighbors):
     if not bad_parts:
         return
     what = " and ".join(bad_parts)
-    pairs = neighbors.pairs
+    pairs = None if neighbors is None else neighbors.pairs
     if pairs is None or len(pairs) == 0:
         raise ValueError(f"non-finite {what}: check the terms' parameters")
     i = pairs.i

@@ -86,10 +86,10 @@ def main():
             atoms.get_forces()
             calc.get_magnetic_forces(atoms)
         via = median_time(via_calc, max(3, args.repeat // 2))
-        geom = ev.spin_geometry(pos)
+        geom = ev.spin_operators(pos)
         bonly = median_time(lambda: ev.spin(geom, spins, Want(magnetic_forces=True)),
                             args.repeat)
-        gtime = median_time(lambda: ev.spin_geometry(pos, out=geom), args.repeat)
+        gtime = median_time(lambda: ev.spin_operators(pos, out=geom), args.repeat)
 
         def build():
             ev.neighbors.invalidate()

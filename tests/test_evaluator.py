@@ -26,7 +26,7 @@ def test_lattice_plus_spin_parts_equal_full_evaluation(system):
     full = ev.evaluate(atoms.positions, spins, Want(energy=True, forces=True,
                                                     magnetic_forces=True, virial=True))
     lat = ev.lattice(atoms.positions, Want(energy=True, forces=True, virial=True))
-    geom = ev.spin_geometry(atoms.positions, virial=True)
+    geom = ev.spin_operators(atoms.positions, virial=True)
     sp = ev.spin(geom, spins, Want(energy=True, forces=True, magnetic_forces=True,
                                    virial=True))
     assert lat.energy + sp.energy == pytest.approx(full.energy, rel=1e-14)
@@ -39,7 +39,7 @@ def test_lattice_plus_spin_parts_equal_full_evaluation(system):
 
 def test_cached_geometry_serves_new_spins(system, rng):
     atoms, spins, ev = system
-    geom = ev.spin_geometry(atoms.positions)
+    geom = ev.spin_operators(atoms.positions)
     for _ in range(3):
         s = random_spins(len(atoms), rng)
         fast = ev.spin(geom, s, Want(magnetic_forces=True, forces=True))
@@ -51,13 +51,13 @@ def test_cached_geometry_serves_new_spins(system, rng):
 
 def test_geometry_out_arrays_are_reused_and_updated(system):
     atoms, spins, ev = system
-    g1 = ev.spin_geometry(atoms.positions)
+    g1 = ev.spin_operators(atoms.positions)
     J1 = g1[0].J.copy()
     moved = atoms.positions + 0.01
     moved[0, 0] += 0.05
-    g2 = ev.spin_geometry(moved, out=g1)
+    g2 = ev.spin_operators(moved, out=g1)
     assert g2[0] is g1[0]
-    fresh = ev.spin_geometry(moved)
+    fresh = ev.spin_operators(moved)
     assert np.array_equal(g2[0].J, fresh[0].J) and not np.array_equal(g2[0].J, J1)
 
 
@@ -79,7 +79,7 @@ def test_add_into_given_arrays(system):
     atoms, spins, ev = system
     F = np.ones((len(atoms), 3))
     B = np.ones((len(atoms), 3))
-    geom = ev.spin_geometry(atoms.positions)
+    geom = ev.spin_operators(atoms.positions)
     out = ev.spin(geom, spins, Want(forces=True, magnetic_forces=True),
                   magnetic_forces=B, forces=F)
     assert out.forces is F and out.magnetic_forces is B

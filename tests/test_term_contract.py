@@ -85,7 +85,7 @@ def test_prepared_operator_and_parts_equal_the_whole(make, scene, rng):
     for s in (spins_of(atoms), random_spins(len(atoms), rng)):
         whole = ev.evaluate(q, s, everything)
         lattice = ev.lattice(q, Want(energy=True, energies=True, forces=True, virial=True))
-        geoms = ev.spin_geometry(q, virial=True)
+        geoms = ev.spin_operators(q, virial=True)
         spin = ev.spin(geoms, s, everything)
         assert lattice.energy + spin.energy == pytest.approx(whole.energy, rel=1e-12, abs=1e-12)
         for part in ("forces", "energies", "virial"):
@@ -96,7 +96,7 @@ def test_prepared_operator_and_parts_equal_the_whole(make, scene, rng):
         if not term.spin_dependent:
             assert spin.energy == 0.0 and not spin.magnetic_forces.any()
         # the half-list geometry the integrators keep gives the same
-        half = ev.spin(ev.spin_geometry(q, half=True), s, Want(magnetic_forces=True))
+        half = ev.spin(ev.spin_operators(q, half=True), s, Want(magnetic_forces=True))
         np.testing.assert_allclose(half.magnetic_forces, whole.magnetic_forces,
                                    rtol=1e-12, atol=1e-13)
 

@@ -55,7 +55,7 @@ class State:
     """What an integrator holds between steps (design.md, "one step as data").
 
     q, p, s, mu: positions, momenta, unit spins, moment magnitudes. FL: lattice
-    forces at q. Gq: pair geometry of the spin terms at q. EL, EL_terms: lattice
+    forces at q. ops: the spin terms prepared at q (SpinOperators). EL, EL_terms: lattice
     energy when it was asked for. carry_*: rounding errors of the compensated
     updates. Subclasses add their own fields in ``_prepare``.
     """
@@ -141,7 +141,7 @@ class SpinLatticeDynamics(MolecularDynamics):
         if not isinstance(calc, SpinLatticeCalculator):
             raise TypeError(f"{type(self).__name__} needs atoms.calc to be an ase_spin "
                             f"SpinLatticeCalculator, got {type(calc).__name__}")
-        if not calc.hamiltonian.skin > 0.0:
+        if calc.hamiltonian.cutoff > 0.0 and not calc.hamiltonian.skin > 0.0:
             raise ValueError(f"{type(self).__name__} needs a neighbour-list skin > 0 (the "
                              "calculator's skin=...): one pair list serves q and q̃")
         masses = _checked_masses(atoms)
@@ -160,7 +160,7 @@ class SpinLatticeDynamics(MolecularDynamics):
                    carry_q=np.zeros_like(q), carry_p=np.zeros_like(q),
                    carry_s=np.zeros_like(q), carry_mid=np.zeros_like(q))
         st.FL = np.zeros_like(q) if self.frozen else ev.lattice(q, _FORCES).forces
-        st.Gq = ev.spin_geometry(q, half=self.half_lists) if self.magnetic else None
+        st.ops = ev.spin_operators(q, half=self.half_lists) if self.magnetic else None
         self._prepare(st)
         self._state = st
         self._remember_written()
@@ -347,11 +347,11 @@ class SpinLatticeDynamics(MolecularDynamics):
         st.EL = res.energy if want_energy else None
         st.EL_terms = res.energy_terms if want_energy else None
 
-    def _spin_forces(self, geoms, W, FL):
-        """F_L + the spin terms' lattice forces at spins W, from cached pair
-        geometry (a new array)."""
+    def _spin_forces(self, operators, W, FL):
+        """F_L + the spin terms' lattice forces at spins W, from prepared
+        operators (a new array)."""
         F = FL.copy()
-        self.ev.spin(geoms, W, _FORCES, forces=F)
+        self.ev.spin(operators, W, _FORCES, forces=F)
         return F
 
     def _check_displacement(self, q, qt, h):
@@ -359,7 +359,7 @@ class SpinLatticeDynamics(MolecularDynamics):
         keeps one pair list valid at both q and q̃, and anything near it means the
         lattice integration has blown up (a Störmer–Verlet step moves atoms by
         ~1e-3 Å at ordinary temperatures and timesteps)."""
-        limit = 0.5 * self.ev.neighbors.skin
+        limit = 0.5 * self.ev.skin
         moved, atom = max_displacement(q, qt)
         if not moved <= limit:
             raise UnstableStepError(
@@ -431,7 +431,7 @@ class SpinLatticeDynamics(MolecularDynamics):
         terms.update(st.EL_terms)
         B = np.zeros_like(st.s)
         if self.magnetic:
-            res = ev.spin(st.Gq, st.s, Want(energy=True, magnetic_forces=True),
+            res = ev.spin(st.ops, st.s, Want(energy=True, magnetic_forces=True),
                           magnetic_forces=B)
             terms.update(res.energy_terms)
         for name in ev.hamiltonian.term_names:

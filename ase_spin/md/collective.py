@@ -14,8 +14,6 @@ from ase import units
 
 from .. import threads
 from ..constants import HBAR
-from ..hamiltonian import Want
-from ..terms.exchange import ExchangeGeometry
 from ..validate import integer, real_scalar
 from . import kernels
 from .base import (IntegrationError, SpinConvergenceError, SpinLatticeDynamics,
@@ -91,12 +89,12 @@ class CollectivePRK(SpinLatticeDynamics):
     Attributes
     ----------
     half_lists : bool
-        Keep the exchange pair geometry on the half pair list (each pair once,
+        Keep the pair terms' operators on the half pair list (each pair once,
         per-thread buffers; the default) or on the full list (gather only).
     iterations : int
         Midpoint sweeps (over all spins) in the last step, all stages.
     geometry_evaluations : int
-        Evaluations of the exchange pair geometry at q̃ in the last step.
+        Preparations of the spin operators at q̃ in the last step.
     """
 
     def __init__(self, atoms, timestep, *, hbar=None, precession="moment", order=2,
@@ -117,7 +115,7 @@ class CollectivePRK(SpinLatticeDynamics):
         st.history = [deque(maxlen=4) for _ in self.gammas]
         st.predictor_order = [0 for _ in self.gammas]
         st.theta = [1.0 for _ in self.gammas]
-        st.Gqt = None
+        st.ops_next = None
         st.Wnext = np.zeros_like(st.s)
         magnetic_rows = np.flatnonzero(self.ev.magnetic)
         st.probe = magnetic_rows[:: max(1, len(magnetic_rows) // 64)]
@@ -131,8 +129,8 @@ class CollectivePRK(SpinLatticeDynamics):
             self._lattice_step(h, want_energy)
             return 0, 0
         if self.frozen:
-            W, st.s, its, _, st.carry_s = self._solve(st.s, st.Gq, self._predict(stage), h,
-                                                      stage, frozen=True)
+            W, st.s, its, _, st.carry_s = self._solve(st.s, st.ops, self._predict(stage), h,
+                                                      stage, mean=False)
             self._remember_midpoint(stage, W)
             return its, 0
         return self._coupled_step(h, stage, want_energy)
@@ -147,19 +145,19 @@ class CollectivePRK(SpinLatticeDynamics):
         qt_used = None
         iterations = geometries = 0
         for _ in range(_MAX_OUTER):
-            F = self._spin_forces(st.Gq, W, st.FL)
+            F = self._spin_forces(st.ops, W, st.FL)
             kernels.kick(p, 0.5 * h, self._md_forces(F, q), st.carry_p, P, st.carry_mid)
             qt, P, carry_q = self._drift(q, P, h)
             if qt_used is None:
                 self._check_displacement(q, qt, h)
             elif kernels.max_abs_difference(qt, qt_used) <= qtol:
                 break
-            if ev.refresh(qt):  # a new pair list: G(q) must use it too
-                st.Gq = ev.spin_geometry(q, half=self.half_lists)
-            st.Gqt = ev.spin_geometry(qt, out=st.Gqt, mean_with=st.Gq,
-                                          half=self.half_lists)
+            if ev.refresh(qt):  # a new pair list: the operators at q must use it too
+                st.ops = ev.spin_operators(q, half=self.half_lists)
+            st.ops_next = ev.spin_operators(qt, out=st.ops_next, mean_with=st.ops,
+                                            half=self.half_lists)
             geometries += 1
-            W, s_new, its, moved, carry_s = self._solve(s, st.Gqt, W, h, stage)
+            W, s_new, its, moved, carry_s = self._solve(s, st.ops_next, W, h, stage)
             iterations += its
             qt_used = qt
             if moved <= 8.0 * self.tol:
@@ -170,12 +168,12 @@ class CollectivePRK(SpinLatticeDynamics):
                 f"positions q̃ and midpoint spins did not settle in {_MAX_OUTER} "
                 f"outer iterations at step {self.nsteps}; reduce the timestep")
         self._lattice_at(qt, want_energy)
-        F = self._spin_forces(st.Gqt, W, st.FL)
+        F = self._spin_forces(st.ops_next, W, st.FL)
         kernels.kick(P, 0.5 * h, self._md_forces(F, qt), st.carry_mid, P, st.carry_p)
         st.carry_q, st.carry_s = carry_q, carry_s
         self._remember_midpoint(stage, W)
         st.q, st.p, st.s = qt, self._adjust_momenta(P, qt), s_new
-        st.Gq, st.Gqt = st.Gqt, st.Gq
+        st.ops, st.ops_next = st.ops_next, st.ops
         return iterations, geometries
 
     # -- the midpoint spins ------------------------------------------------------
@@ -197,66 +195,38 @@ class CollectivePRK(SpinLatticeDynamics):
                                                                          st.probe)
         history.append(W)
 
-    def _solve(self, s, geoms, W, h, stage, frozen=False):
-        """Midpoint spins for the couplings J̄ = ½[J(q) + J(q̃)] held in ``geoms``
-        (``Jbar``; ``J`` itself with a frozen lattice). Returns (W, s̃, sweeps,
-        how far W moved from the starting guess, the rounding error of s̃)."""
+    def _solve(self, s, operators, W, h, stage, mean=True):
+        """Midpoint spins for the midpoint fields of ``operators`` (B̄ =
+        ½[B(q, W) + B(q̃, W)]; B(q, W) itself when ``mean`` is False: a frozen
+        lattice). Returns (W, s̃, sweeps, how far W moved from the starting
+        guess, the rounding error of s̃)."""
         scale = h * self.sigma / self.hbar
-        floor = 64.0 * self.tol
-        couplings = [g.J if frozen else g.Jbar for g in geoms]
         st = self._state
         carry = np.zeros_like(s)
-        if len(geoms) == 1:
-            pairs = geoms[0].pairs
-            stilde = np.zeros_like(s)
-            solve = kernels.midpoint_solve_half if pairs.half else kernels.midpoint_solve
-            its, delta, status, which, theta, moved = solve(
-                threads.count(), pairs.row, pairs.j, couplings[0], s, W, st.Wnext,
-                stilde, scale, self.tol, floor, self.max_iter,
+        stilde = np.zeros_like(s)
+        args = (s, W, st.Wnext, stilde, scale, self.tol, 64.0 * self.tol, self.max_iter,
                 min(1.0, 2.0 * st.theta[stage]), st.carry_s, carry)
-            st.theta[stage] = theta if theta < 1.0 else st.theta[stage]
-            if which == 1:
-                W, st.Wnext = st.Wnext, W
+        if len(operators) == 1 and hasattr(operators[0], "linear_pairs"):
+            # B̄_i = Σ_j c_ij W_j: the whole iteration in one compiled loop
+            pairs, c = operators[0].linear_pairs(mean)
+            solve = kernels.midpoint_solve_half if pairs.half else kernels.midpoint_solve
+            result = solve(threads.count(), pairs.row, pairs.j, c, *args)
         else:
-            W0 = W
-            W, stilde, its, delta, status = self._solve_terms(s, geoms, couplings, W, scale,
-                                                              floor)
-            moved = float(np.abs(W - W0).max()) if len(W) else 0.0
+            result = kernels.midpoint_solve_operators(operators, *args, mean)
+        its, delta, status, which, theta, moved = result
+        st.theta[stage] = theta if theta < 1.0 else st.theta[stage]
+        if which == 1:
+            W, st.Wnext = st.Wnext, W
         if status == kernels.NOT_CONVERGED:
-            self._raise_not_converged(geoms, couplings, W, its, delta, scale)
+            self._raise_not_converged(operators, W, its, delta, scale, mean)
         return W, stilde, its, moved, carry
 
-    def _solve_terms(self, s, geoms, couplings, W, scale, floor):
-        """The same iteration for several spin terms (B̄ summed over terms)."""
-        mean = [ExchangeGeometry(g.pairs, J, g.G, None) for g, J in zip(geoms, couplings)]
-        want = Want(magnetic_forces=True)
-        magnetic = self.ev.magnetic[:, None]
-        previous = np.inf
-        for it in range(1, self.max_iter + 1):
-            B = self.ev.spin(mean, W, want).magnetic_forces
-            stilde = s + scale * np.cross(W, B)
-            v = s + stilde
-            norm = np.linalg.norm(v, axis=1)
-            norm[norm == 0.0] = 1.0
-            Wn = np.where(magnetic, v / norm[:, None], 0.0)
-            delta = float(np.abs(Wn - W).max()) if len(W) else 0.0
-            W = Wn
-            if not delta <= 2.0:
-                return W, stilde, it, delta, kernels.NOT_CONVERGED
-            if delta <= self.tol:
-                return W, stilde, it, delta, kernels.CONVERGED
-            if delta <= floor and delta >= previous:
-                return W, stilde, it, delta, kernels.ROUNDOFF
-            previous = delta
-        return W, stilde, self.max_iter, delta, kernels.NOT_CONVERGED
-
-    def _raise_not_converged(self, geoms, couplings, W, its, delta, scale):
-        field = np.zeros(len(W))
-        for g, J in zip(geoms, couplings):
-            field += np.bincount(g.pairs.i, weights=np.abs(J), minlength=len(W))
-            if g.pairs.half:
-                field += np.bincount(g.pairs.j, weights=np.abs(J), minlength=len(W))
-        x = abs(scale) * float(field.max()) if len(field) else 0.0
+    def _raise_not_converged(self, operators, W, its, delta, scale, mean):
+        B = np.zeros_like(W)
+        for op in operators:
+            op.field(W, B, mean)
+        field = np.sqrt(np.einsum("ij,ij->i", B, B))
+        x = abs(scale) * float(np.nanmax(field)) if len(field) else 0.0
         raise SpinConvergenceError(
             f"the midpoint-spin iteration did not converge at step {self.nsteps}: "
             f"max |ΔW| = {delta:.3g} after {its} iterations (tol {self.tol:.1e}). "

@@ -6,6 +6,7 @@ import numba as nb
 import numpy as np
 
 from ..neighbors import balanced_chunks
+from .. import threads
 from ..threads import threaded
 
 # Exit status of :func:`midpoint_solve`.
@@ -70,7 +71,7 @@ def _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out
 
 
 @nb.njit(cache=True, inline="always")
-def _after_sweep(it, delta, previous, theta, measured, first, tol, floor):
+def after_sweep(it, delta, previous, theta, measured, first, tol, floor):
     """Bookkeeping after sweep ``it`` with change ``delta`` (see :func:`midpoint_solve`):
     (status, or -1 to go on; contraction θ in use; θ measured; change of the first sweep)."""
     if it > 1 and delta > 1e3 * tol and delta < previous:
@@ -150,7 +151,7 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
         delta = change.max()
         cur, nxt = nxt, cur
         which = 1 - which
-        status, theta, measured, first = _after_sweep(it, delta, previous, theta, measured,
+        status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
                                                       first, tol, floor)
         if status >= 0:
             return it, delta, status, which, measured, first
@@ -221,8 +222,57 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
         delta = change.max()
         cur, nxt = nxt, cur
         which = 1 - which
-        status, theta, measured, first = _after_sweep(it, delta, previous, theta, measured,
+        status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
                                                       first, tol, floor)
+        if status >= 0:
+            return it, delta, status, which, measured, first
+        previous = delta
+    return max_iter, delta, NOT_CONVERGED, which, measured, first
+
+
+@threaded()
+def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out):
+    """One Jacobi sweep of the midpoint iteration for given midpoint fields
+    B̄ = ``B`` (the sum of every spin operator's field at W): the update of
+    :func:`_midpoint_update` for every magnetic spin (rows with s_i = 0 are
+    skipped), W → ``Wnext``. Returns max |ΔW| over all components."""
+    n = s.shape[0]
+    change = np.zeros(nthreads)
+    for t in nb.prange(nthreads):
+        m = 0.0
+        for i in range((n * t) // nthreads, (n * (t + 1)) // nthreads):
+            if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+                continue
+            m = max(m, _midpoint_update(i, s, W, Wnext, B[i, 0], B[i, 1], B[i, 2], scale,
+                                        stilde, carry, carry_out))
+        change[t] = m
+    return change.max()
+
+
+def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, max_iter,
+                             theta0, carry, carry_out, mean):
+    r""":func:`midpoint_solve` for any spin terms: B̄_i = Σ_terms B̄_i(W), each
+    operator adding its own midpoint field (``field(W, out, mean)``) every
+    sweep. The same update, reflection form, compensated sum, stopping rule and
+    return values as :func:`midpoint_solve`; ``operators`` whose field is of the
+    form Σ_j c_ij W_j are better solved there (one compiled loop)."""
+    B = np.empty_like(s)
+    nthreads = threads.count()
+    cur = W
+    nxt = Wnext
+    which = 0
+    previous = np.inf
+    theta = measured = theta0
+    delta = first = 0.0
+    for it in range(1, max_iter + 1):
+        B[:] = 0.0
+        for op in operators:
+            op.field(cur, B, mean)
+        delta = midpoint_update(nthreads, s, cur, nxt, B, scale, stilde, carry, carry_out)
+        cur, nxt = nxt, cur
+        which = 1 - which
+        status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
+                                                     first, tol, floor)
         if status >= 0:
             return it, delta, status, which, measured, first
         previous = delta

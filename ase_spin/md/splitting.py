@@ -49,7 +49,11 @@ class SuzukiTrotter(SpinLatticeDynamics):
     a rotation by 2 arctan(θ/2); ``rotation="exact"`` rotates by θ itself.
     With ``rotation="cayley"`` and LAMMPS's ħ it reproduces LAMMPS step for step.
     ``order`` 4 and 6 compose the step as for :class:`CollectivePRK`.
-    One exchange term only.
+
+    Any spin terms whose operators offer a per-spin field (``site``; every term
+    in this package does), up to :data:`MAX_SITE_TERMS` of them. A scene
+    with exchange alone runs a cached compiled sweep; other combinations
+    compile theirs on first use in each process (about a second).
     """
 
     half_lists = False  # the sweeps gather each spin's field from a full list
@@ -73,40 +77,101 @@ class SuzukiTrotter(SpinLatticeDynamics):
         if not self.magnetic:
             self._lattice_step(h, want_energy)
             return 0, 0
-        if len(st.Gq) != 1:
-            raise ValueError("SuzukiTrotter handles one spin (exchange) term")
         if self.frozen:
-            self._spin_half_step(st.Gq[0], h)
-            self._spin_half_step(st.Gq[0], h)
+            self._spin_half_step(st.ops, h)
+            self._spin_half_step(st.ops, h)
             return 0, 0
         ev = self.ev
         # F(q, s) from the end of the last (sub)step, else computed
-        F = st.end_forces if st.end_forces is not None else self._spin_forces(st.Gq, st.s,
+        F = st.end_forces if st.end_forces is not None else self._spin_forces(st.ops, st.s,
                                                                               st.FL)
         P = np.empty_like(st.p)
         kernels.kick(st.p, 0.5 * h, self._md_forces(F, st.q), st.carry_p, P, st.carry_mid)
-        self._spin_half_step(st.Gq[0], h)
+        self._spin_half_step(st.ops, h)
         qt, P, st.carry_q = self._drift(st.q, P, h)
         self._check_displacement(st.q, qt, h)
-        st.Gq = ev.spin_geometry(qt, out=st.Gq, half=False)
-        self._spin_half_step(st.Gq[0], h)
+        st.ops = ev.spin_operators(qt, out=st.ops, half=False)
+        self._spin_half_step(st.ops, h)
         self._lattice_at(qt, want_energy)
-        F = self._spin_forces(st.Gq, st.s, st.FL)
+        F = self._spin_forces(st.ops, st.s, st.FL)
         kernels.kick(P, 0.5 * h, self._md_forces(F, qt), st.carry_mid, P, st.carry_p)
         st.q, st.p = qt, self._adjust_momenta(P, qt)
         st.end_forces = F
         return 0, 1
 
-    def _spin_half_step(self, geom, h):
-        pairs = geom.pairs
-        angle = rotate_sweeps(pairs.row, pairs.j, geom.J, self._state.s,
-                              -0.25 * h * self.sigma / self.hbar, self.rotation == "exact")
+    def _spin_half_step(self, operators, h):
+        tau = -0.25 * h * self.sigma / self.hbar
+        exact = self.rotation == "exact"
+        s = self._state.s
+        if len(operators) == 1 and hasattr(operators[0], "linear_pairs"):
+            pairs, J = operators[0].linear_pairs()
+            angle = rotate_sweeps(pairs.row, pairs.j, J, s, tau, exact)
+        else:
+            angle = rotate_sweeps_sites(s, tau, exact, *_site_arguments(operators))
         if not angle <= MAX_SWEEP_ROTATION:
             raise UnstableStepError(
                 f"a spin was to rotate by {angle:.3g} rad in one sweep (h/4·|B|/ħ) at step "
                 f"{self.nsteps}; above {MAX_SWEEP_ROTATION} rad the splitting is "
                 f"meaningless. Reduce the timestep (now {self.dt / units.fs:.4g} fs) or "
                 f"check hbar ({self.hbar:.4g}). The atoms keep the state before this step.")
+
+
+#: Spin terms the sequential sweeps take at once.
+MAX_SITE_TERMS = 6
+
+
+@nb.njit(cache=True, inline="always")
+def _no_site(i, s, data):
+    return 0.0, 0.0, 0.0
+
+
+_NO_DATA = (np.zeros(0),)
+
+
+def _site_arguments(operators):
+    """(f0, d0, …, f5, d5): every operator's per-spin field function and data,
+    padded with a function giving zero."""
+    if len(operators) > MAX_SITE_TERMS:
+        raise ValueError(f"SuzukiTrotter takes at most {MAX_SITE_TERMS} spin terms, "
+                         f"got {len(operators)}")
+    args = []
+    for op in operators:
+        if op.site is None:
+            raise ValueError(f"SuzukiTrotter needs each spin term's field spin by spin; "
+                             f"{type(op).__name__} does not offer it (its 'site')")
+        args.extend(op.site)
+    for _ in range(MAX_SITE_TERMS - len(operators)):
+        args.extend((_no_site, _NO_DATA))
+    return args
+
+
+@nb.njit(cache=True, inline="always")
+def _rotate(s, i, tx, ty, tz, exact):
+    """Rotate spin i in place by θ = (tx, ty, tz) (Cayley or exact); returns θ²."""
+    sx = s[i, 0]
+    sy = s[i, 1]
+    sz = s[i, 2]
+    t2 = tx * tx + ty * ty + tz * tz
+    cx = ty * sz - tz * sy  # θ × s
+    cy = tz * sx - tx * sz
+    cz = tx * sy - ty * sx
+    ts = tx * sx + ty * sy + tz * sz
+    if exact:
+        angle = np.sqrt(t2)
+        if angle == 0.0:
+            return t2
+        c = np.cos(angle)
+        sn = np.sin(angle) / angle
+        f = (1.0 - c) / t2
+        s[i, 0] = sx * c + cx * sn + tx * ts * f
+        s[i, 1] = sy * c + cy * sn + ty * ts * f
+        s[i, 2] = sz * c + cz * sn + tz * ts * f
+    else:
+        d = 1.0 + 0.25 * t2
+        s[i, 0] = (sx + cx + 0.5 * (tx * ts - 0.5 * sx * t2)) / d
+        s[i, 1] = (sy + cy + 0.5 * (ty * ts - 0.5 * sy * t2)) / d
+        s[i, 2] = (sz + cz + 0.5 * (tz * ts - 0.5 * sz * t2)) / d
+    return t2
 
 
 @nb.njit(cache=True)
@@ -121,10 +186,7 @@ def rotate_sweeps(row, nbr, J, s, tau, exact):
     for sweep in range(2):
         for a in range(n):
             i = a if sweep == 0 else n - 1 - a
-            sx = s[i, 0]
-            sy = s[i, 1]
-            sz = s[i, 2]
-            if sx == 0.0 and sy == 0.0 and sz == 0.0:
+            if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
                 continue
             tx = 0.0
             ty = 0.0
@@ -134,29 +196,47 @@ def rotate_sweeps(row, nbr, J, s, tau, exact):
                 tx += J[k] * s[j, 0]
                 ty += J[k] * s[j, 1]
                 tz += J[k] * s[j, 2]
-            tx *= tau
-            ty *= tau
-            tz *= tau
-            t2 = tx * tx + ty * ty + tz * tz
+            t2 = _rotate(s, i, tau * tx, tau * ty, tau * tz, exact)
             if not t2 <= largest and largest == largest:  # a NaN stays
                 largest = t2
-            cx = ty * sz - tz * sy  # θ × s
-            cy = tz * sx - tx * sz
-            cz = tx * sy - ty * sx
-            ts = tx * sx + ty * sy + tz * sz
-            if exact:
-                angle = np.sqrt(t2)
-                if angle == 0.0:
-                    continue
-                c = np.cos(angle)
-                sn = np.sin(angle) / angle
-                f = (1.0 - c) / t2
-                s[i, 0] = sx * c + cx * sn + tx * ts * f
-                s[i, 1] = sy * c + cy * sn + ty * ts * f
-                s[i, 2] = sz * c + cz * sn + tz * ts * f
-            else:
-                d = 1.0 + 0.25 * t2
-                s[i, 0] = (sx + cx + 0.5 * (tx * ts - 0.5 * sx * t2)) / d
-                s[i, 1] = (sy + cy + 0.5 * (ty * ts - 0.5 * sy * t2)) / d
-                s[i, 2] = (sz + cz + 0.5 * (tz * ts - 0.5 * sz * t2)) / d
+    return np.sqrt(largest)
+
+
+@nb.njit
+def rotate_sweeps_sites(s, tau, exact, f0, d0, f1, d1, f2, d2, f3, d3, f4, d4, f5, d5):
+    """:func:`rotate_sweeps` for any spin terms: B_i is the sum of each term's
+    per-spin field ``f(i, s, d)`` at the spins as they are. (Not cached: numba
+    cannot cache a function of functions; compiled once per process and
+    combination of terms.)"""
+    n = s.shape[0]
+    largest = 0.0
+    for sweep in range(2):
+        for a in range(n):
+            i = a if sweep == 0 else n - 1 - a
+            if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+                continue
+            tx, ty, tz = f0(i, s, d0)
+            x, y, z = f1(i, s, d1)
+            tx += x
+            ty += y
+            tz += z
+            x, y, z = f2(i, s, d2)
+            tx += x
+            ty += y
+            tz += z
+            x, y, z = f3(i, s, d3)
+            tx += x
+            ty += y
+            tz += z
+            x, y, z = f4(i, s, d4)
+            tx += x
+            ty += y
+            tz += z
+            x, y, z = f5(i, s, d5)
+            tx += x
+            ty += y
+            tz += z
+            t2 = _rotate(s, i, tau * tx, tau * ty, tau * tz, exact)
+            if not t2 <= largest and largest == largest:  # a NaN stays
+                largest = t2
     return np.sqrt(largest)

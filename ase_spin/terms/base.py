@@ -10,8 +10,8 @@ import numpy as np
 
 from ..validate import real_scalar
 
-__all__ = ["Term", "Parameterised", "PairParameters", "Species", "pair_key", "resolve_pairs",
-           "pair_values", "parameter_generation"]
+__all__ = ["Term", "SpinTerm", "SpinOperator", "System", "Parameterised", "PairParameters",
+           "Species", "pair_key", "resolve_pairs", "pair_values", "parameter_generation"]
 
 _versions = itertools.count(1)
 _last_change = [0]
@@ -178,22 +178,110 @@ class Species:
         return cls(tuple(str(s) for s in symbols), types.astype(np.int64))
 
 
+@dataclass(frozen=True)
+class System:
+    """What a term binds to: the system's species, which atoms are magnetic and
+    their moment magnitudes μ_i (μB), its cell and periodicity."""
+
+    species: Species
+    moments: np.ndarray
+    cell: np.ndarray
+    pbc: np.ndarray
+
+    @property
+    def types(self):
+        return self.species.types
+
+    @property
+    def magnetic(self):
+        return self.moments > 0.0
+
+    @property
+    def natoms(self):
+        return len(self.moments)
+
+
 class Term(Parameterised):
     """A term of the Hamiltonian.
 
-    Subclasses define ``cutoff`` (Å, the range of the term), ``spin_dependent``
-    and ``name`` (the key in ``calc.results['energy_terms']``), and implement
-    :meth:`bind` to turn their parameters into per-species-pair tables. Their
-    parameters may be reassigned after construction (see :class:`Parameterised`).
+    Subclasses define ``name`` (the key in ``calc.results['energy_terms']``),
+    ``spin_dependent``, ``neighbor_list`` (the pair list the term needs:
+    ``"half"`` — each pair once —, or None for a term without pairs) and
+    ``cutoff`` (Å, its range), and implement :meth:`bind`. Their parameters may
+    be reassigned after construction (see :class:`Parameterised`).
+
+    A lattice (spin-independent) term implements
+    ``compute(positions, pairs, types, table, forces, energies, want)``: it adds
+    forces and per-atom energies into the given arrays and returns (energy,
+    virial in Voigt order, eV).
     """
 
     name = "term"
     spin_dependent = False
+    neighbor_list = "half"
     cutoff = 0.0
 
-    def bind(self, species):
-        """Return the term's parameter table for these species."""
+    def bind(self, system):
+        """The term's parameters made concrete for a :class:`System` (a table
+        per species pair, per-atom fields, ...): what its kernels take. Called
+        again whenever the system's cell, periodicity or moments change."""
         raise NotImplementedError
 
     def __repr__(self):
         return f"{type(self).__name__}(...)"
+
+
+class SpinOperator:
+    """A spin term prepared at given positions: an operator on spins.
+
+    What the integrators and the calculator ask of every spin-dependent term:
+
+    - :meth:`field` — add the magnetic forces B(W) = −∂E/∂s at spins W (eV);
+      with ``mean=True``, the midpoint field ½[B(q, W) + B(q̃, W)] of an
+      operator prepared at q̃ with ``mean_with`` the one at q (the collective
+      step's B̄);
+    - :meth:`add` — the energy, lattice forces, per-atom energies, virial and
+      magnetic forces at spins W;
+    - ``site`` — for the sequential sweeps of the splitting integrator, a
+      compiled function ``f(i, s, data) -> (Bx, By, Bz)`` giving spin i's field
+      from the spins as they are, and its ``data`` tuple (None: not offered).
+
+    Non-magnetic atoms get zero field.
+    """
+
+    site = None
+
+    def field(self, W, out, mean=False):
+        raise NotImplementedError
+
+    def add(self, W, want, magnetic_forces, forces, energies):
+        """Add what ``want`` asks for at unit spins W; returns (energy, virial)."""
+        raise NotImplementedError
+
+
+class SpinTerm(Term):
+    """A spin-dependent term.
+
+    Implements :meth:`prepare`, returning a :class:`SpinOperator` for given
+    positions. :meth:`compute` (one direct evaluation, what the calculator
+    calls) defaults to preparing an operator and asking it; pair terms
+    override it with a single fused pass.
+    """
+
+    spin_dependent = True
+
+    def prepare(self, positions, pairs, types, table, *, virial=False, out=None,
+                mean_with=None):
+        """The operator at ``positions`` (``pairs``: the term's pair list, or
+        None if it needs none). ``virial``: it must be able to give the virial.
+        ``out``: an earlier operator of this term whose buffers may be reused.
+        ``mean_with``: the operator at the other end of a step (same pair
+        list), for ``field(..., mean=True)``."""
+        raise NotImplementedError
+
+    def compute(self, positions, pairs, types, table, spins, magnetic_forces, forces,
+                energies, want):
+        """Everything ``want`` asks for at ``positions`` and ``spins``, added into
+        the arrays given; returns (energy, virial)."""
+        op = self.prepare(positions, pairs, types, table, virial=want.virial)
+        return op.add(spins, want, magnetic_forces, forces, energies)

@@ -9,9 +9,10 @@ from .. import threads
 from ..neighbors import balanced_chunks, reduce_threads, reduce_threads_serial, separation
 from ..threads import threaded
 from ..validate import flag, length, real_scalar
-from .base import Parameterised, Term, is_pair_mapping, pair_values, resolve_pairs
+from .base import (Parameterised, SpinOperator, SpinTerm, is_pair_mapping, pair_values,
+                   resolve_pairs)
 
-__all__ = ["Coupling", "BetheSlater", "Cubic", "Exchange", "ExchangeGeometry"]
+__all__ = ["Coupling", "BetheSlater", "Cubic", "Exchange", "ExchangeOperator"]
 
 # Coupling forms the compiled kernels evaluate directly; anything else is
 # evaluated by its own (vectorised) ``values(r)``.
@@ -136,27 +137,88 @@ def _check_coupling(c, what):
     return c
 
 
-class ExchangeGeometry:
-    """Pair geometry of an exchange term at one set of positions.
+class ExchangeOperator(SpinOperator):
+    """Exchange prepared at one set of positions (a :class:`SpinOperator`).
 
     For every pair k = (i → j) of ``pairs``: ``J[k] = J(r_ij)`` and
     ``G[k] = J'(r_ij) d_ij / r_ij`` with d_ij = r_j + S_ij − r_i; ``D`` holds
-    d_ij when a virial is wanted. J = G = 0 unless r² < rc² (LAMMPS's rule). Spins do not enter:
-    it stays valid while only the spins change.
+    d_ij when a virial is wanted. J = G = 0 unless r² < rc² (LAMMPS's rule).
+    Spins do not enter: it stays valid while only the spins change.
 
-    ``Jbar`` (when asked for with ``mean_with``) is ½[J + J_other] with the J of
-    another geometry of the same pairs: the couplings of the collective
-    integrator's midpoint field, filled in the same pass over the pairs.
+    ``Jbar`` (when prepared with ``mean_with``) is ½[J + J_other] with the J of
+    the operator at the other end of the step, on the same pairs: the couplings
+    of the collective integrator's midpoint field, B̄_i = Σ_j J̄_ij W_j, filled in
+    the same pass over the pairs.
     """
 
-    __slots__ = ("pairs", "J", "G", "D", "Jbar")
+    __slots__ = ("pairs", "J", "G", "D", "Jbar", "offset")
 
-    def __init__(self, pairs, J, G, D):
+    def __init__(self, pairs, J, G, D, offset=0.0):
         self.pairs, self.J, self.G, self.D = pairs, J, G, D
         self.Jbar = None
+        self.offset = offset
+
+    def linear_pairs(self, mean=False):
+        """(pairs, c) with B_i = Σ_j c_k W_j over the pairs k = (i → j): the
+        form the integrators' fused kernels take."""
+        return self.pairs, (self.Jbar if mean else self.J)
+
+    @property
+    def site(self):
+        if self.pairs.half:
+            return None
+        return _exchange_site, (self.pairs.row, self.pairs.j, self.J)
+
+    def field(self, W, out, mean=False):
+        J = self.Jbar if mean else self.J
+        _field(self.pairs, J, W, out)
+
+    def add(self, W, want, magnetic_forces, forces, energies):
+        """Add B_i = Σ_j J_ij s_j, the exchange forces and energies for spins W.
+
+        Returns (energy, virial in Voigt order xx yy zz yz xz xy, eV).
+        """
+        pairs = self.pairs
+        D = self.D if self.D is not None else _NO_D
+        want_virial = want.virial and D.shape[0] > 0
+        if pairs.half:
+            out = _spin_pass_half_kernel(threads.count(), pairs.row, pairs.j, self.J, self.G,
+                                         D, W, self.offset, magnetic_forces, forces,
+                                         energies, want.magnetic_forces, want.forces,
+                                         want.energy, want.energies, want_virial)
+        else:
+            out = _spin_pass_kernel(pairs.row, pairs.j, self.J, self.G, D, W, self.offset,
+                                    magnetic_forces, forces, energies, want.magnetic_forces,
+                                    want.forces, want.energy, want.energies, want_virial)
+        return out[0], np.array(out[1:])
 
 
-class Exchange(Term):
+def _field(pairs, J, W, out):
+    """out_i += Σ_j J_k W_j over a pair list (full: gather; half: scatter)."""
+    if pairs.half:
+        _spin_pass_half_kernel(threads.count(), pairs.row, pairs.j, J, _NO_D, _NO_D, W, 0.0,
+                               out, _NO_D, _NO_EX, True, False, False, False, False)
+    else:
+        _spin_pass_kernel(pairs.row, pairs.j, J, _NO_D, _NO_D, W, 0.0, out, _NO_D, _NO_EX,
+                          True, False, False, False, False)
+
+
+@nb.njit(cache=True, inline="always")
+def _exchange_site(i, s, data):
+    """B_i = Σ_j J_ij s_j from the spins as they are (full pair list)."""
+    row, nbr, J = data
+    bx = 0.0
+    by = 0.0
+    bz = 0.0
+    for k in range(row[i], row[i + 1]):
+        j = nbr[k]
+        bx += J[k] * s[j, 0]
+        by += J[k] * s[j, 1]
+        bz += J[k] * s[j, 2]
+    return bx, by, bz
+
+
+class Exchange(SpinTerm):
     r"""Heisenberg exchange (LAMMPS ``pair_style spin/exchange``)
 
     .. math::
@@ -184,7 +246,6 @@ class Exchange(Term):
     """
 
     name = "exchange"
-    spin_dependent = True
 
     _parameters = {"coupling": "coupling", "rc": "rc", "offset": "offset"}
 
@@ -209,9 +270,9 @@ class Exchange(Term):
     def __repr__(self):
         return f"Exchange({self.coupling!r}, rc={self.rc}, offset={self.offset})"
 
-    def bind(self, species):
-        couplings = resolve_pairs(self.coupling, species.symbols, "Exchange coupling")
-        nt = len(species.symbols)
+    def bind(self, system):
+        couplings = resolve_pairs(self.coupling, system.species.symbols, "Exchange coupling")
+        nt = len(system.species.symbols)
         table = np.zeros((nt, nt, 5))
         for a in range(nt):
             for b in range(nt):
@@ -231,40 +292,40 @@ class Exchange(Term):
     def energy_offset(self):
         return 1.0 if self.offset else 0.0
 
-    def geometry(self, positions, pairs, types, bound, virial=False, out=None, mean_with=None):
-        """:class:`ExchangeGeometry` of ``pairs`` at ``positions``.
+    def prepare(self, positions, pairs, types, bound, *, virial=False, out=None,
+                mean_with=None):
+        """:class:`ExchangeOperator` of ``pairs`` at ``positions``.
 
-        ``out``: a geometry of the same pair list whose arrays are overwritten.
-        ``mean_with``: a geometry of the same pairs; fills ``Jbar``.
+        ``out``: an operator on the same pair list whose arrays are overwritten.
+        ``mean_with``: an operator on the same pairs; fills ``Jbar``.
         """
         table, couplings = bound
         n = len(pairs)
         if out is not None and out.pairs is pairs and (out.D is not None or not virial):
-            geom = out
+            op = out
+            op.offset = self.energy_offset
         else:
-            geom = ExchangeGeometry(pairs, np.empty(n), np.empty((n, 3)),
-                                    np.empty((n, 3)) if virial else None)
+            op = ExchangeOperator(pairs, np.empty(n), np.empty((n, 3)),
+                                  np.empty((n, 3)) if virial else None, self.energy_offset)
         if mean_with is not None:
             if mean_with.pairs is not pairs:
-                raise ValueError("mean_with must be a geometry of the same pair list")
-            if geom.Jbar is None or len(geom.Jbar) != n:
-                geom.Jbar = np.empty(n)
-            other, Jbar = mean_with.J, geom.Jbar
+                raise ValueError("mean_with must be an operator on the same pair list")
+            if op.Jbar is None or len(op.Jbar) != n:
+                op.Jbar = np.empty(n)
+            other, Jbar = mean_with.J, op.Jbar
         else:
-            geom.Jbar = None
+            op.Jbar = None
             other = Jbar = _NO_EX
         if couplings is None:
-            D = geom.D if geom.D is not None else _NO_D
+            D = op.D if op.D is not None else _NO_D
             if table.shape[0] == 1:
                 # one species: parameters as scalars, no per-pair table lookups
                 _geometry_single(positions, pairs.row, pairs.j, pairs.image, pairs.images,
-                                 *table[0, 0], geom.J, geom.G, D, geom.D is not None, other,
-                                 Jbar)
+                                 *table[0, 0], op.J, op.G, D, op.D is not None, other, Jbar)
             else:
                 _geometry_kernel(positions, pairs.row, pairs.j, pairs.image, pairs.images,
-                                 types, table, geom.J, geom.G, D, geom.D is not None, other,
-                                 Jbar)
-            return geom
+                                 types, table, op.J, op.G, D, op.D is not None, other, Jbar)
+            return op
         i = pairs.i
         d = (positions[pairs.j] - positions[i]) + pairs.shift
         r2 = np.einsum("ij,ij->i", d, d)
@@ -275,49 +336,28 @@ class Exchange(Term):
         for a, b in zip(*np.nonzero(table[:, :, _FORM] != _OFF)):
             sel = (ti == a) & (tj == b) & (r2 < table[a, b, _RC2])
             J[sel], dJ[sel] = _user_values(couplings[a, b], r[sel])
-        geom.J[:] = J
-        geom.G[:] = (dJ / np.where(r > 0.0, r, 1.0))[:, None] * d
-        if geom.D is not None:
-            geom.D[:] = d
-        if geom.Jbar is not None:
-            np.multiply(0.5, mean_with.J + J, out=geom.Jbar)
-        return geom
+        op.J[:] = J
+        op.G[:] = (dJ / np.where(r > 0.0, r, 1.0))[:, None] * d
+        if op.D is not None:
+            op.D[:] = d
+        if op.Jbar is not None:
+            np.multiply(0.5, mean_with.J + J, out=op.Jbar)
+        return op
 
-    def compute(self, positions, half_pairs, full_pairs, types, bound, spins,
-                magnetic_forces, forces, energies, want):
+    def compute(self, positions, pairs, types, bound, spins, magnetic_forces, forces,
+                energies, want):
         """Everything ``want`` asks for at ``positions`` and ``spins`` in one pass
         over the half list (no pair geometry kept). Returns (energy, virial)."""
         table, couplings = bound
         if couplings is not None:
-            geom = self.geometry(positions, full_pairs, types, bound, virial=want.virial)
-            return self.spin_pass(geom, spins, magnetic_forces, forces, energies, want)
-        out = _direct_kernel(threads.all_threads(), positions, half_pairs.row, half_pairs.j,
-                             half_pairs.image, half_pairs.images, types, table, spins,
+            op = self.prepare(positions, pairs, types, bound, virial=want.virial)
+            return op.add(spins, want, magnetic_forces, forces, energies)
+        out = _direct_kernel(threads.all_threads(), positions, pairs.row, pairs.j,
+                             pairs.image, pairs.images, types, table, spins,
                              self.energy_offset, magnetic_forces, forces, energies,
                              want.magnetic_forces, want.forces, want.energy, want.energies,
                              want.virial)
         return out[0], out[1:]
-
-    def spin_pass(self, geom, spins, magnetic_forces, forces, energies, want):
-        """Add B_i = Σ_j J_ij s_j, the exchange forces and energies for ``spins``.
-
-        Returns (energy, virial in Voigt order xx yy zz yz xz xy, eV).
-        """
-        pairs = geom.pairs
-        D = geom.D if geom.D is not None else _NO_D
-        kernel = _spin_pass_kernel
-        if pairs.half:
-            kernel = _spin_pass_half_kernel
-            out = kernel(threads.count(), pairs.row, pairs.j, geom.J, geom.G, D, spins,
-                         self.energy_offset, magnetic_forces, forces, energies,
-                         want.magnetic_forces, want.forces, want.energy, want.energies,
-                         want.virial and D.shape[0] > 0)
-            return out[0], np.array(out[1:])
-        out = _spin_pass_kernel(pairs.row, pairs.j, geom.J, geom.G, D, spins,
-                                self.energy_offset, magnetic_forces, forces, energies,
-                                want.magnetic_forces, want.forces, want.energy,
-                                want.energies, want.virial and D.shape[0] > 0)
-        return out[0], np.array(out[1:])
 
 
 _NO_D = np.zeros((0, 3))

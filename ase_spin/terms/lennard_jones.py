@@ -88,8 +88,8 @@ class LennardJones(Term):
             f"cutoff={self.mode!r})"
         )
 
-    def bind(self, species):
-        symbols = species.symbols
+    def bind(self, system):
+        symbols = system.species.symbols
         eps = resolve_pairs(self.epsilon, symbols, "LennardJones epsilon")
         sig = resolve_pairs(self.sigma, symbols, "LennardJones sigma")
         rcs = resolve_pairs(self.rc, symbols, "LennardJones rc")
