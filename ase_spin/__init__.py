@@ -2,12 +2,13 @@
 
 from .calculator import SpinLatticeCalculator
 from .hamiltonian import AtomsTooCloseError, Evaluator, Hamiltonian, Want
-from .constants import HBAR_LAMMPS
+from .constants import HBAR_LAMMPS, MU_B, MU_B_LAMMPS
 from .io import complete_frames, recover_trajectory
 from .md import (HBAR, CollectivePRK, IntegrationError, SpinConvergenceError,
                  SpinLatticeDynamics, SpinMDLogger, SuzukiTrotter, UnstableStepError)
 from .spins import get_moments, get_spins, set_spins
-from .terms import BetheSlater, Coupling, Cubic, Exchange, LennardJones, Term
+from .terms import (BetheSlater, Coupling, Cubic, Exchange, LennardJones, Term,
+                    UniaxialAnisotropy, Zeeman)
 
 __version__ = "0.1.0"
 
@@ -15,7 +16,8 @@ __all__ = [
     "SpinLatticeCalculator", "Hamiltonian", "Evaluator", "Want", "AtomsTooCloseError",
     "set_spins", "get_spins", "get_moments",
     "CollectivePRK", "SuzukiTrotter", "SpinLatticeDynamics", "IntegrationError",
-    "SpinConvergenceError", "UnstableStepError", "SpinMDLogger", "HBAR", "HBAR_LAMMPS",
+    "SpinConvergenceError", "UnstableStepError", "SpinMDLogger", "HBAR", "HBAR_LAMMPS", "MU_B", "MU_B_LAMMPS",
     "recover_trajectory", "complete_frames",
-    "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic",
+    "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic", "Zeeman",
+    "UniaxialAnisotropy",
 ]

@@ -121,3 +121,20 @@ def robust_norm(v):
     safe = np.where(m > 0.0, m, 1.0)
     scaled = v / safe[:, None]
     return m * np.sqrt(np.einsum("ij,ij->i", scaled, scaled))
+
+
+def unit_vector(value, what):
+    """A direction: three finite real numbers, not all zero, normalised
+    (exactly at any scale: scaled by the largest component first)."""
+    v = real_array(value, what).reshape(-1)
+    if v.shape != (3,):
+        raise ValueError(f"{what} must have three components, got {v.size}")
+    if not np.isfinite(v).all():
+        raise ValueError(f"{what} must be finite, got {v.tolist()}")
+    big = np.abs(v).max()
+    if big == 0.0:
+        raise ValueError(f"{what} must not be the zero vector")
+    v = v / big
+    v = v / np.sqrt(v @ v)
+    v.setflags(write=False)
+    return v

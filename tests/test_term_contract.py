@@ -5,7 +5,7 @@ and stress are the derivatives of its energy (finite differences); the prepared
 operator (cached geometry, then magnetic forces for any spins) gives what a
 direct evaluation gives; the lattice and spin parts add up to the whole;
 energy is invariant under translation, and under a global rotation of
-positions, cell and spins where the term is isotropic.
+positions, cell, spins and the term's own directions (field, axes).
 """
 
 import numpy as np
@@ -13,7 +13,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ase_spin import (BetheSlater, Cubic, Exchange, Hamiltonian, LennardJones,
-                      SpinLatticeCalculator, Want)
+                      SpinLatticeCalculator, UniaxialAnisotropy, Want, Zeeman, set_spins)
 
 from conftest import CO_BS, CO_LJ, random_spins, structures
 from test_calculator import fd_forces, fd_magnetic_forces, fd_stress
@@ -30,26 +30,47 @@ class _UserCoupling:
                                                - x**2 * np.sin(r))
 
 
-#: (id, term factory, isotropic in spin space)
+def _isotropic(make):
+    return lambda R=None: make()
+
+
+#: (id, factory(R): the term, with its directions rotated by the matrix R when given)
 TERMS = [
-    ("lj-plain", lambda: LennardJones(**CO_LJ, cutoff="plain"), True),
-    ("lj-shift", lambda: LennardJones(**CO_LJ, cutoff="shift"), True),
-    ("lj-smooth", lambda: LennardJones(**CO_LJ, cutoff="smooth"), True),
-    ("exchange-bethe-slater", lambda: Exchange(BetheSlater(*CO_BS), rc=4.0), True),
-    ("exchange-offset", lambda: Exchange(BetheSlater(*CO_BS), rc=4.0, offset=True), True),
-    ("exchange-cubic", lambda: Exchange(Cubic(0.3, 4.2)), True),
-    ("exchange-user", lambda: Exchange(_UserCoupling()), True),
+    ("lj-plain", _isotropic(lambda: LennardJones(**CO_LJ, cutoff="plain"))),
+    ("lj-shift", _isotropic(lambda: LennardJones(**CO_LJ, cutoff="shift"))),
+    ("lj-smooth", _isotropic(lambda: LennardJones(**CO_LJ, cutoff="smooth"))),
+    ("exchange-bethe-slater", _isotropic(lambda: Exchange(BetheSlater(*CO_BS), rc=4.0))),
+    ("exchange-offset",
+     _isotropic(lambda: Exchange(BetheSlater(*CO_BS), rc=4.0, offset=True))),
+    ("exchange-cubic", _isotropic(lambda: Exchange(Cubic(0.3, 4.2)))),
+    ("exchange-user", _isotropic(lambda: Exchange(_UserCoupling()))),
+    ("zeeman", lambda R=np.eye(3): Zeeman(R @ [0.3, -1.2, 2.0])),
+    ("zeeman-lammps", lambda R=np.eye(3): Zeeman(7.0, R @ [1.0, 1.0, 0.0], mu_B=5.78901e-5)),
+    ("uniaxial", lambda R=np.eye(3): UniaxialAnisotropy(0.013, R @ [0.2, 0.5, -1.0])),
+    ("easy-plane", lambda R=np.eye(3): UniaxialAnisotropy(-0.02, R @ [0.0, 0.0, 1.0])),
 ]
 IDS = [t[0] for t in TERMS]
-STRUCTURES = structures()
 SCENES = ["fcc", "triclinic", "tiny2", "open"]
 FD_SCENES = ["triclinic", "tiny2", "slab"]  # small: each costs 12 N evaluations
 
 
+def _unequal_moments(atoms):
+    """The scene with moment magnitudes between 0.5 and 3 μB (terms that scale
+    with μ_i must be checked with unequal ones)."""
+    atoms = atoms.copy()
+    m = atoms.get_initial_magnetic_moments()
+    mu = np.random.default_rng(len(atoms)).uniform(0.5, 3.0, len(atoms))
+    set_spins(atoms, m, np.where(np.linalg.norm(m, axis=1) > 0, mu, 0.0))
+    return atoms
+
+
+STRUCTURES = {name: _unequal_moments(a) for name, a in structures().items()}
+
+
 def bound(term, atoms):
     ham = Hamiltonian([term])
-    magnetic = np.linalg.norm(atoms.get_initial_magnetic_moments(), axis=1) > 0
-    return ham.bind(atoms.numbers, atoms.cell.array, atoms.pbc, magnetic)
+    moments = np.linalg.norm(atoms.get_initial_magnetic_moments(), axis=1)
+    return ham.bind(atoms.numbers, atoms.cell.array, atoms.pbc, moments)
 
 
 def spins_of(atoms):
@@ -101,8 +122,8 @@ def test_prepared_operator_and_parts_equal_the_whole(make, scene, rng):
                                    rtol=1e-12, atol=1e-13)
 
 
-@pytest.mark.parametrize("make, isotropic", [(t[1], t[2]) for t in TERMS], ids=IDS)
-def test_invariances(make, isotropic, rng):
+@pytest.mark.parametrize("make", [t[1] for t in TERMS], ids=IDS)
+def test_invariances(make, rng):
     atoms = STRUCTURES["triclinic"]
     want = Want(energy=True, forces=True, magnetic_forces=True)
     s = spins_of(atoms)
@@ -116,9 +137,9 @@ def test_invariances(make, isotropic, rng):
     rotated = atoms.copy()
     rotated.set_cell(atoms.cell.array @ R.T)
     rotated.positions = atoms.positions @ R.T
-    if isotropic:
-        s_rot = s @ R.T
-        rot = bound(make(), rotated).evaluate(rotated.positions, s_rot, want)
-        assert rot.energy == pytest.approx(ref.energy, rel=1e-11, abs=1e-12)
-        np.testing.assert_allclose(rot.forces, ref.forces @ R.T, atol=1e-10)
-        np.testing.assert_allclose(rot.magnetic_forces, ref.magnetic_forces @ R.T, atol=1e-11)
+    # positions, cell, spins and the term's own directions rotated together
+    s_rot = s @ R.T
+    rot = bound(make(R), rotated).evaluate(rotated.positions, s_rot, want)
+    assert rot.energy == pytest.approx(ref.energy, rel=1e-11, abs=1e-12)
+    np.testing.assert_allclose(rot.forces, ref.forces @ R.T, atol=1e-10)
+    np.testing.assert_allclose(rot.magnetic_forces, ref.magnetic_forces @ R.T, atol=1e-11)

@@ -95,18 +95,25 @@ class SpinLatticeDynamics(MolecularDynamics):
 
     Parameters common to all: ``timestep`` (ASE time units), ``hbar`` (default
     :data:`HBAR`), ``precession`` ("moment": σ = −1, LAMMPS; "spin": σ = +1, the
-    paper), ``order``/``composition`` (symmetric compositions of the step),
+    paper), ``gyromagnetic`` ("lammps": ds_i/dt = (σ/ħ) s_i × B_i whatever the
+    moment, LAMMPS SPIN's equation; "moment": ds_i/dt = (σ g/(μ_i ħ)) s_i × B_i,
+    the Landau–Lifshitz precession of a moment μ_i μB, with ``g`` = 2 by
+    default), ``order``/``composition`` (symmetric compositions of the step),
     ``lattice`` ("moving" or "frozen"), and ASE's ``trajectory``, ``logfile``,
     ``loginterval``, ``append_trajectory``.
     """
 
     half_lists = True
 
-    def __init__(self, atoms, timestep, *, hbar=None, precession="moment", order=2,
-                 composition=None, lattice="moving", trajectory=None, logfile=None,
-                 loginterval=1, **kwargs):
+    def __init__(self, atoms, timestep, *, hbar=None, precession="moment",
+                 gyromagnetic="lammps", g=2.0, order=2, composition=None, lattice="moving",
+                 trajectory=None, logfile=None, loginterval=1, **kwargs):
         if not isinstance(precession, str) or precession not in ("moment", "spin"):
             raise ValueError(f'precession must be "moment" or "spin", got {precession!r}')
+        if not isinstance(gyromagnetic, str) or gyromagnetic not in ("lammps", "moment"):
+            raise ValueError(f'gyromagnetic must be "lammps" or "moment", got {gyromagnetic!r}')
+        self.gyromagnetic = gyromagnetic
+        self.g = positive_scalar(g, "g")
         if not isinstance(lattice, str) or lattice not in ("moving", "frozen"):
             raise ValueError(f'lattice must be "moving" or "frozen", got {lattice!r}')
         timestep = real_scalar(timestep, "timestep")
@@ -132,7 +139,7 @@ class SpinLatticeDynamics(MolecularDynamics):
 
     def todict(self):
         return {**super().todict(), "order": self.order, "precession": self.precession,
-                "hbar": self.hbar}
+                "gyromagnetic": self.gyromagnetic, "g": self.g, "hbar": self.hbar}
 
     # -- set-up and staleness --------------------------------------------------
     def _initialize(self):
@@ -154,7 +161,8 @@ class SpinLatticeDynamics(MolecularDynamics):
         self.magnetic = ev.any_magnetic and bool(ev.hamiltonian.spin_terms)
         self.frozen = self.frozen_lattice or self._all_fixed()
         q = real_array(atoms.positions, "positions").copy()
-        st = State(q=q, p=momenta, s=np.ascontiguousarray(spins), mu=mu, EL=None,
+        st = State(q=q, p=momenta, s=np.ascontiguousarray(spins), mu=mu,
+                   rate=self._precession_rates(mu), EL=None,
                    EL_terms=None, observables=None,
                    # rounding errors of the last updates (compensated summation)
                    carry_q=np.zeros_like(q), carry_p=np.zeros_like(q),
@@ -167,6 +175,15 @@ class SpinLatticeDynamics(MolecularDynamics):
 
     def _prepare(self, state):
         """Add an integrator's own per-run fields to a fresh state."""
+
+    def _precession_rates(self, mu):
+        """Per-spin factor r_i of the precession, ds_i/dt = r_i (σ/ħ) s_i × B_i:
+        1 (LAMMPS) or g/μ_i (a moment μ_i μB: the Landau–Lifshitz precession)."""
+        if self.gyromagnetic == "lammps":
+            return np.ones_like(mu)
+        rate = np.zeros_like(mu)
+        np.divide(self.g, mu, out=rate, where=mu > 0.0)
+        return rate
 
 
     def _all_fixed(self):

@@ -65,6 +65,12 @@ class CollectivePRK(SpinLatticeDynamics):
     precession : "moment" or "spin"
         σ = −1 (LAMMPS SPIN, ds/dt = ω × s with ω = B/ħ; the default) or σ = +1
         (the paper's spin convention).
+    gyromagnetic : "lammps" or "moment"
+        The precession rate: (σ/ħ) s_i × B_i whatever the moment (LAMMPS SPIN;
+        the default), or (σ g/(μ_i ħ)) s_i × B_i, the Landau–Lifshitz precession
+        of a moment μ_i μB (Spirit, UppASD); see docs/conventions.md.
+    g : float
+        The g-factor of the "moment" precession (default 2).
     order : 2, 4 or 6
         4 and 6 are symmetric compositions of the second-order step (Suzuki's
         five-stage and Kahan–Li's nine-stage); ``composition`` picks another
@@ -97,15 +103,17 @@ class CollectivePRK(SpinLatticeDynamics):
         Preparations of the spin operators at q̃ in the last step.
     """
 
-    def __init__(self, atoms, timestep, *, hbar=None, precession="moment", order=2,
-                 composition=None, tol=None, max_iter=None, lattice="moving",
-                 trajectory=None, logfile=None, loginterval=1, **kwargs):
+    def __init__(self, atoms, timestep, *, hbar=None, precession="moment",
+                 gyromagnetic="lammps", g=2.0, order=2, composition=None, tol=None,
+                 max_iter=None, lattice="moving", trajectory=None, logfile=None,
+                 loginterval=1, **kwargs):
         self.tol = 1e-15 if tol is None else real_scalar(tol, "tol")
         if not TOL_RANGE[0] <= self.tol <= TOL_RANGE[1]:
             raise ValueError(f"tol must lie between {TOL_RANGE[0]:g} and {TOL_RANGE[1]:g} "
                              f"(a change of a unit spin component), got {self.tol:g}")
         self.max_iter = 100 if max_iter is None else integer(max_iter, "max_iter", minimum=1)
-        super().__init__(atoms, timestep, hbar=hbar, precession=precession, order=order,
+        super().__init__(atoms, timestep, hbar=hbar, precession=precession,
+                         gyromagnetic=gyromagnetic, g=g, order=order,
                          composition=composition, lattice=lattice, trajectory=trajectory,
                          logfile=logfile, loginterval=loginterval, **kwargs)
 
@@ -200,8 +208,8 @@ class CollectivePRK(SpinLatticeDynamics):
         ½[B(q, W) + B(q̃, W)]; B(q, W) itself when ``mean`` is False: a frozen
         lattice). Returns (W, s̃, sweeps, how far W moved from the starting
         guess, the rounding error of s̃)."""
-        scale = h * self.sigma / self.hbar
         st = self._state
+        scale = (h * self.sigma / self.hbar) * st.rate
         carry = np.zeros_like(s)
         stilde = np.zeros_like(s)
         args = (s, W, st.Wnext, stilde, scale, self.tol, 64.0 * self.tol, self.max_iter,
@@ -226,7 +234,7 @@ class CollectivePRK(SpinLatticeDynamics):
         for op in operators:
             op.field(W, B, mean)
         field = np.sqrt(np.einsum("ij,ij->i", B, B))
-        x = abs(scale) * float(np.nanmax(field)) if len(field) else 0.0
+        x = float(np.nanmax(np.abs(scale) * field)) if len(field) else 0.0
         raise SpinConvergenceError(
             f"the midpoint-spin iteration did not converge at step {self.nsteps}: "
             f"max |ΔW| = {delta:.3g} after {its} iterations (tol {self.tol:.1e}). "

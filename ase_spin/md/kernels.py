@@ -17,7 +17,8 @@ CONVERGED, ROUNDOFF, NOT_CONVERGED = 0, 1, 2
 def _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out):
     """One spin's Jacobi update given its midpoint field B̄_i = (bx, by, bz).
 
-    With d = c W_i × B̄_i and v = 2 s_i + d (= s_i + s̃_i), the next iterate is
+    With d = c_i W_i × B̄_i (c_i = ``scale[i]``, hσ/ħ times the spin's
+    precession rate factor) and v = 2 s_i + d (= s_i + s̃_i), the next iterate is
     W_i = v/|v| and the end point is
 
         s̃_i = s_i + d − κ v,   κ = (2 s_i·d + |d|²)/|v|²,
@@ -38,9 +39,10 @@ def _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out
     wx = cur[i, 0]
     wy = cur[i, 1]
     wz = cur[i, 2]
-    dx = scale * (wy * bz - wz * by)
-    dy = scale * (wz * bx - wx * bz)
-    dz = scale * (wx * by - wy * bx)
+    c = scale[i]
+    dx = c * (wy * bz - wz * by)
+    dy = c * (wz * bx - wx * bz)
+    dz = c * (wx * by - wy * bx)
     vx = 2.0 * (sx + cx) + dx
     vy = 2.0 * (sy + cy) + dy
     vz = 2.0 * (sz + cz) + dz
@@ -99,7 +101,8 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
         \qquad \bar{\mathbf B}_i = \sum_j \bar J_{ij} \mathbf W_j, \qquad
         \mathbf W_i = \frac{\mathbf s_i + \tilde{\mathbf s}_i}{|\mathbf s_i + \tilde{\mathbf s}_i|},
 
-    with c = hσ/ħ, by the Jacobi fixed-point iteration
+    with c = hσ/ħ (per spin: ``scale`` holds c_i, which carries each spin's
+    precession rate factor), by the Jacobi fixed-point iteration
     W ← (2 s + c W × B̄(W)) / |2 s + c W × B̄(W)|, which contracts while c|B̄| ≲ 1.
     Rows with s_i = 0 (non-magnetic atoms) are skipped.
 

@@ -22,14 +22,18 @@ __all__ = ["reference_solution"]
 _WANT = Want(forces=True, magnetic_forces=True)
 
 
-def reference_solution(atoms, t_end, *, hbar, precession="moment", rtol=1e-13, atol=1e-14,
-                       frozen_lattice=False):
+def reference_solution(atoms, t_end, *, hbar, precession="moment", gyromagnetic="lammps",
+                       g=2.0, rtol=1e-13, atol=1e-14, frozen_lattice=False):
     """(positions, momenta, spins) at ``t_end`` (ASE time) from the state of ``atoms``.
 
     ``atoms.calc`` must be a SpinLatticeCalculator; the Atoms are not changed.
+    ``gyromagnetic="moment"`` multiplies spin i's precession by g/μ_i.
     """
     ev, moments = atoms.calc.bound_evaluator(atoms)
-    spins, _ = split_moments(moments)
+    spins, mu = split_moments(moments)
+    rate = np.ones((len(mu), 1))
+    if gyromagnetic == "moment":
+        rate[mu > 0, 0] = g / mu[mu > 0]
     n = len(atoms)
     m = atoms.get_masses()[:, None]
     sigma = -1.0 if precession == "moment" else 1.0
@@ -42,7 +46,7 @@ def reference_solution(atoms, t_end, *, hbar, precession="moment", rtol=1e-13, a
         res = ev.evaluate(q, s, _WANT)
         dq = np.zeros_like(q) if frozen_lattice else p / m
         dp = np.zeros_like(p) if frozen_lattice else res.forces
-        ds = (sigma / hbar) * np.cross(s, res.magnetic_forces)
+        ds = (sigma / hbar) * rate * np.cross(s, res.magnetic_forces)
         return np.concatenate([dq.ravel(), dp.ravel(), ds.ravel()])
 
     sol = solve_ivp(rhs, (0.0, t_end), y0, method="DOP853", rtol=rtol, atol=atol)

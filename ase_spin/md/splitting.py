@@ -58,12 +58,14 @@ class SuzukiTrotter(SpinLatticeDynamics):
 
     half_lists = False  # the sweeps gather each spin's field from a full list
 
-    def __init__(self, atoms, timestep, *, hbar=None, precession="moment", rotation="cayley",
-                 order=2, composition=None, lattice="moving", **kwargs):
+    def __init__(self, atoms, timestep, *, hbar=None, precession="moment",
+                 gyromagnetic="lammps", g=2.0, rotation="cayley", order=2, composition=None,
+                 lattice="moving", **kwargs):
         if not isinstance(rotation, str) or rotation not in ("cayley", "exact"):
             raise ValueError(f'rotation must be "cayley" or "exact", got {rotation!r}')
         self.rotation = rotation
-        super().__init__(atoms, timestep, hbar=hbar, precession=precession, order=order,
+        super().__init__(atoms, timestep, hbar=hbar, precession=precession,
+                         gyromagnetic=gyromagnetic, g=g, order=order,
                          composition=composition, lattice=lattice, **kwargs)
 
     def todict(self):
@@ -100,7 +102,7 @@ class SuzukiTrotter(SpinLatticeDynamics):
         return 0, 1
 
     def _spin_half_step(self, operators, h):
-        tau = -0.25 * h * self.sigma / self.hbar
+        tau = (-0.25 * h * self.sigma / self.hbar) * self._state.rate
         exact = self.rotation == "exact"
         s = self._state.s
         if len(operators) == 1 and hasattr(operators[0], "linear_pairs"):
@@ -177,7 +179,7 @@ def _rotate(s, i, tx, ty, tz, exact):
 @nb.njit(cache=True)
 def rotate_sweeps(row, nbr, J, s, tau, exact):
     """A forward then a backward sweep over the spins, in place: spin i is
-    rotated about its current field, θ = τ B_i with B_i = Σ_j J_ij s_j from the
+    rotated about its current field, θ = τ_i B_i with B_i = Σ_j J_ij s_j from the
     spins as they are at that moment (so later spins see earlier updates).
     Cayley rotation (LAMMPS's AdvanceSingleSpin) or the exact one. Returns the
     largest |θ| (NaN if a field was not finite)."""
@@ -196,7 +198,8 @@ def rotate_sweeps(row, nbr, J, s, tau, exact):
                 tx += J[k] * s[j, 0]
                 ty += J[k] * s[j, 1]
                 tz += J[k] * s[j, 2]
-            t2 = _rotate(s, i, tau * tx, tau * ty, tau * tz, exact)
+            c = tau[i]
+            t2 = _rotate(s, i, c * tx, c * ty, c * tz, exact)
             if not t2 <= largest and largest == largest:  # a NaN stays
                 largest = t2
     return np.sqrt(largest)
@@ -236,7 +239,8 @@ def rotate_sweeps_sites(s, tau, exact, f0, d0, f1, d1, f2, d2, f3, d3, f4, d4, f
             tx += x
             ty += y
             tz += z
-            t2 = _rotate(s, i, tau * tx, tau * ty, tau * tz, exact)
+            c = tau[i]
+            t2 = _rotate(s, i, c * tx, c * ty, c * tz, exact)
             if not t2 <= largest and largest == largest:  # a NaN stays
                 largest = t2
     return np.sqrt(largest)

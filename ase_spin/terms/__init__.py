@@ -1,9 +1,12 @@
 """Hamiltonian terms: each states its energy and computes, over a pair list,
 energy, forces, magnetic forces (spin terms) and virial."""
 
-from .base import Term
+from .anisotropy import UniaxialAnisotropy
+from .base import SingleSiteTerm, SpinOperator, SpinTerm, Term
 from .exchange import BetheSlater, Coupling, Cubic, Exchange, ExchangeOperator
 from .lennard_jones import LennardJones
+from .zeeman import Zeeman
 
-__all__ = ["Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic",
-           "ExchangeOperator"]
+__all__ = ["Term", "SpinTerm", "SingleSiteTerm", "SpinOperator", "LennardJones", "Exchange",
+           "Coupling", "BetheSlater", "Cubic", "ExchangeOperator", "Zeeman",
+           "UniaxialAnisotropy"]

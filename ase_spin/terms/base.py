@@ -285,3 +285,129 @@ class SpinTerm(Term):
         the arrays given; returns (energy, virial)."""
         op = self.prepare(positions, pairs, types, table, virial=want.virial)
         return op.add(spins, want, magnetic_forces, forces, energies)
+
+
+_NO_FIELD = np.zeros((0, 3))
+_NO_SITE_ENERGIES = np.zeros(0)
+
+
+def _site_pass(s, data, B, energies, want_b, want_energies):
+    """Skeleton of every single-site term's pass (compiled once per term, with
+    ``site_field`` and ``site_energy`` bound to that term's functions):
+    B_i += b(i, s, data), e_i += e(i, s, data); returns Σ_i e_i."""
+    total = 0.0
+    for i in range(s.shape[0]):
+        if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+            continue
+        if want_b:
+            bx, by, bz = site_field(i, s, data)  # noqa: F821 - bound per term
+            B[i, 0] += bx
+            B[i, 1] += by
+            B[i, 2] += bz
+        e = site_energy(i, s, data)  # noqa: F821 - bound per term
+        total += e
+        if want_energies:
+            energies[i] += e
+    return total
+
+
+def compile_site_pass(field, energy, name):
+    """:func:`_site_pass` for one term's compiled ``field(i, s, data) -> (Bx,
+    By, Bz)`` and ``energy(i, s, data) -> E_i``, cached on disk under a name
+    that changes with their code (a cached skeleton must not outlive an edit
+    of the functions it calls)."""
+    import hashlib
+    import types
+
+    import numba as nb
+
+    code = hashlib.sha1()
+    for f in (field, energy):
+        code.update(f.py_func.__code__.co_code)
+        code.update(repr(f.py_func.__code__.co_consts).encode())
+    glob = dict(_site_pass.__globals__, site_field=field, site_energy=energy)
+    fn = types.FunctionType(_site_pass.__code__, glob, f"_site_pass_{name}")
+    fn.__qualname__ = f"_site_pass_{name}_{code.hexdigest()[:12]}"
+    fn.__module__ = _site_pass.__module__
+    return nb.njit(cache=True)(fn)
+
+
+class SiteOperator(SpinOperator):
+    """The operator of a single-site term: B_i and E_i depend on s_i alone
+    (and on per-atom data fixed at binding), not on positions; no lattice
+    forces, no virial. The same object serves q, q̃ and their midpoint."""
+
+    __slots__ = ("data", "_pass", "site")
+
+    def __init__(self, field, data, site_pass):
+        self.data = data
+        self._pass = site_pass
+        self.site = (field, data)
+
+    def field(self, W, out, mean=False):
+        self._pass(W, self.data, out, _NO_SITE_ENERGIES, True, False)
+
+    def add(self, W, want, magnetic_forces, forces, energies):
+        e = self._pass(W, self.data, magnetic_forces, energies, want.magnetic_forces,
+                       want.energies)
+        return e, np.zeros(6)
+
+
+class SingleSiteTerm(SpinTerm):
+    """A spin term acting on each spin alone (fields, anisotropies): no pairs.
+
+    A subclass sets ``site_field`` and ``site_energy``, compiled
+    (``numba.njit(inline="always")``) functions of ``(i, s, data)`` giving B_i
+    = −∂E_i/∂s_i and E_i for unit spins s, and implements :meth:`bind`
+    returning ``data``: a tuple of per-atom arrays (zero on non-magnetic atoms)
+    built from its parameters and the system's moments. That is all: the
+    passes over atoms, the operator and the integrators' use of it follow.
+    """
+
+    neighbor_list = None
+    site_field = None
+    site_energy = None
+
+    @classmethod
+    def _compiled_pass(cls):
+        if "_site_pass" not in cls.__dict__:
+            cls._site_pass = compile_site_pass(cls.site_field, cls.site_energy, cls.__name__)
+        return cls._site_pass
+
+    def prepare(self, positions, pairs, types, table, *, virial=False, out=None,
+                mean_with=None):
+        if out is not None and out.data is table:
+            return out
+        return SiteOperator(type(self).site_field, table, self._compiled_pass())
+
+
+def species_values(value, what, check):
+    """Check a per-species parameter: one value, or a mapping from chemical
+    symbol to value. Returns the value or a read-only mapping."""
+    if isinstance(value, Mapping):
+        checked = {}
+        for key, v in value.items():
+            if not isinstance(key, str) or not key:
+                raise ValueError(f"{what}: keys are chemical symbols such as 'Fe'; got {key!r}")
+            checked[key] = check(v, f"{what} for {key}")
+        return PairParameters(checked, what)
+    return check(value, what)
+
+
+def per_atom(value, system, what):
+    """A per-species parameter (see :func:`species_values`) as a per-atom array,
+    zero on non-magnetic atoms. A magnetic species missing from a mapping is an
+    error naming it."""
+    magnetic = system.magnetic
+    if not isinstance(value, Mapping):
+        return np.where(magnetic, float(value), 0.0)
+    symbols = system.species.symbols
+    table = np.zeros(len(symbols))
+    present = set(system.types[magnetic].tolist())
+    for t, sym in enumerate(symbols):
+        if sym in value:
+            table[t] = value[sym]
+        elif t in present:
+            raise ValueError(f"{what}: no value for the magnetic species {sym}; give one "
+                             "(0 switches the term off for it)")
+    return np.where(magnetic, table[system.types], 0.0)

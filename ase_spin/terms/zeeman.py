@@ -1,0 +1,78 @@
+"""An external magnetic field (LAMMPS ``fix precession/spin zeeman``)."""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from ..constants import MU_B
+from ..validate import positive_scalar, real_array, real_scalar, unit_vector
+from .base import SingleSiteTerm
+
+__all__ = ["Zeeman"]
+
+
+@nb.njit(cache=True, inline="always")
+def _field(i, s, data):
+    h = data[0]
+    return h[i, 0], h[i, 1], h[i, 2]
+
+
+@nb.njit(cache=True, inline="always")
+def _energy(i, s, data):
+    h = data[0]
+    return -(h[i, 0] * s[i, 0] + h[i, 1] * s[i, 1] + h[i, 2] * s[i, 2])
+
+
+class Zeeman(SingleSiteTerm):
+    r"""A uniform external field **H** (tesla) acting on every magnetic atom:
+
+    .. math::
+
+        E = -g\,\mu_B \sum_i \mu_i\, \mathbf s_i\cdot\mathbf H, \qquad
+        \mathbf B_i = -\frac{\partial E}{\partial \mathbf s_i} = g\,\mu_B\,\mu_i\,\mathbf H,
+
+    with μ_i the atom's moment magnitude (|initial_magmoms|, μB) and μ_B in
+    eV/T. ``g = 2`` and ``mu_B``'s default are LAMMPS's choices for ``fix
+    precession/spin zeeman`` (which reads μ_i as the spin length: its moment is
+    then g μ_i μ_B); with ``initial_magmoms`` holding true moments the
+    physical Zeeman energy is −μ_i μ_B s·H, ``g=1``: see docs/conventions.md.
+
+    ``field``: the field in tesla, a 3-vector, or its magnitude with
+    ``direction`` (any non-zero 3-vector, normalised here) as in LAMMPS's
+    ``zeeman H x y z``. ``mu_B``: the Bohr magneton in eV/T, default
+    :data:`~ase_spin.constants.MU_B`; LAMMPS's is
+    :data:`~ase_spin.constants.MU_B_LAMMPS`.
+    """
+
+    name = "zeeman"
+    site_field = _field
+    site_energy = _energy
+
+    _parameters = {"field": "field", "direction": "direction", "g": "g", "mu_B": "mu_B"}
+
+    def __init__(self, field, direction=None, *, g=2.0, mu_B=None):
+        if direction is None:
+            H = real_array(field, "Zeeman field").reshape(-1)
+            if H.shape != (3,) or not np.isfinite(H).all():
+                raise ValueError("Zeeman field must be three finite numbers (tesla), or a "
+                                 f"magnitude with a direction; got {field!r}")
+        else:
+            field = real_scalar(field, "Zeeman field")
+            direction = unit_vector(direction, "Zeeman direction")
+            H = field * direction
+        self.field = H if direction is None else field
+        self.direction = direction
+        H.setflags(write=False)  # edited in place, bound tables would go stale unnoticed
+        #: the field vector (T)
+        self.H = H
+        self.g = real_scalar(g, "Zeeman g")
+        self.mu_B = MU_B if mu_B is None else positive_scalar(mu_B, "Zeeman mu_B")
+        self._finish()
+
+    def __repr__(self):
+        return f"Zeeman({self.H.tolist()}, g={self.g}, mu_B={self.mu_B})"
+
+    def bind(self, system):
+        h = (self.g * self.mu_B) * system.moments[:, None] * self.H[None, :]
+        return (np.ascontiguousarray(h),)
