@@ -75,9 +75,12 @@ class LammpsSpin:
     exchange : (J1, J2, J3, rc, offset)
     timestep_fs : float
     lattice : "moving" or "frozen" (``fix nve/spin`` keyword)
+    fixes : LAMMPS commands defining more spin fixes (``fix precession/spin``
+        and its ``fix_modify ... energy yes``), issued before ``fix nve/spin``
     """
 
-    def __init__(self, atoms, lj, exchange, timestep_fs=0.1, lattice="moving", threads=1):
+    def __init__(self, atoms, lj, exchange, timestep_fs=0.1, lattice="moving", threads=1,
+                 fixes=()):
         lammps = load_lammps()
         from ase import units
 
@@ -130,6 +133,7 @@ class LammpsSpin:
             f"pair_modify pair lj/cut shift {'yes' if shift else 'no'}",
             "neighbor 1.0 bin",
             "neigh_modify every 1 delay 0 check yes",
+            *fixes,
             f"fix 1 all nve/spin lattice {lattice}",
             f"timestep {timestep_fs * 1e-3!r}",
             "compute fm all property/atom fmx fmy fmz",
