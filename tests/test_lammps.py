@@ -117,6 +117,12 @@ SPIN_FIXES = {
     "easy-plane+zeeman": (lambda: [ase_spin.Zeeman(4.0, [0, 0, 1], mu_B=ase_spin.MU_B_LAMMPS),
                                    ase_spin.UniaxialAnisotropy(-2e-3, [0, 0, 1])],
                           "zeeman 4.0 0 0 1 anisotropy -0.002 0 0 1"),
+    "cubic": (lambda: [ase_spin.CubicAnisotropy(2e-3, 7e-3, [[1, 1, 0], [-1, 1, 0], [0, 0, 1]])],
+              "cubic 0.002 0.007 1 1 0 -1 1 0 0 0 1"),
+    "all": (lambda: [ase_spin.Zeeman(3.0, [1, 0, 0], mu_B=ase_spin.MU_B_LAMMPS),
+                     ase_spin.UniaxialAnisotropy(1e-3, [0, 1, 1]),
+                     ase_spin.CubicAnisotropy(-4e-3, 1e-3)],
+            "zeeman 3.0 1 0 0 anisotropy 0.001 0 1 1 cubic -0.004 0.001 1 0 0 0 1 0 0 0 1"),
 }
 
 
@@ -156,7 +162,7 @@ def test_single_site_terms_agree_with_lammps(case):
     assert np.abs(S - ref["stress"]).max() < 1e-12 * np.abs(S).max()
 
 
-@pytest.mark.parametrize("case", ["zeeman", "easy-plane+zeeman"])
+@pytest.mark.parametrize("case", ["zeeman", "easy-plane+zeeman", "all"])
 def test_suzuki_trotter_with_precession_fix_follows_lammps(case):
     """SuzukiTrotter on the per-spin-field path (exchange + single-site terms)
     with LAMMPS's ħ and rotation follows fix nve/spin with fix precession/spin

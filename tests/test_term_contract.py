@@ -13,7 +13,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ase_spin import (BetheSlater, Cubic, Exchange, Hamiltonian, LennardJones,
-                      SpinLatticeCalculator, UniaxialAnisotropy, Want, Zeeman, set_spins)
+                      SpinLatticeCalculator, UniaxialAnisotropy, Want, Zeeman, set_spins,
+                      CubicAnisotropy)
 
 from conftest import CO_BS, CO_LJ, random_spins, structures
 from test_calculator import fd_forces, fd_magnetic_forces, fd_stress
@@ -48,6 +49,9 @@ TERMS = [
     ("zeeman-lammps", lambda R=np.eye(3): Zeeman(7.0, R @ [1.0, 1.0, 0.0], mu_B=5.78901e-5)),
     ("uniaxial", lambda R=np.eye(3): UniaxialAnisotropy(0.013, R @ [0.2, 0.5, -1.0])),
     ("easy-plane", lambda R=np.eye(3): UniaxialAnisotropy(-0.02, R @ [0.0, 0.0, 1.0])),
+    ("cubic", lambda R=np.eye(3): CubicAnisotropy(0.011, -0.03, np.eye(3) @ R.T)),
+    ("cubic-skew", lambda R=np.eye(3): CubicAnisotropy(
+        -0.02, 0.005, np.array([[1.0, 1.0, 0.0], [-1.0, 1.0, 0.3], [0.1, 0.0, 1.0]]) @ R.T)),
 ]
 IDS = [t[0] for t in TERMS]
 SCENES = ["fcc", "triclinic", "tiny2", "open"]

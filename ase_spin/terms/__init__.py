@@ -1,7 +1,7 @@
 """Hamiltonian terms: each states its energy and computes, over a pair list,
 energy, forces, magnetic forces (spin terms) and virial."""
 
-from .anisotropy import UniaxialAnisotropy
+from .anisotropy import CubicAnisotropy, UniaxialAnisotropy
 from .base import SingleSiteTerm, SpinOperator, SpinTerm, Term
 from .exchange import BetheSlater, Coupling, Cubic, Exchange, ExchangeOperator
 from .lennard_jones import LennardJones
@@ -9,4 +9,4 @@ from .zeeman import Zeeman
 
 __all__ = ["Term", "SpinTerm", "SingleSiteTerm", "SpinOperator", "LennardJones", "Exchange",
            "Coupling", "BetheSlater", "Cubic", "ExchangeOperator", "Zeeman",
-           "UniaxialAnisotropy"]
+           "UniaxialAnisotropy", "CubicAnisotropy"]

@@ -9,7 +9,7 @@ import numpy as np
 from ..validate import real_scalar, unit_vector
 from .base import SingleSiteTerm, per_atom, species_values
 
-__all__ = ["UniaxialAnisotropy"]
+__all__ = ["UniaxialAnisotropy", "CubicAnisotropy"]
 
 
 def _energy_value(value, what):
@@ -60,3 +60,84 @@ class UniaxialAnisotropy(SingleSiteTerm):
 
     def bind(self, system):
         return (per_atom(self.K, system, "UniaxialAnisotropy K"), np.array(self.axis))
+
+
+@nb.njit(cache=True, inline="always")
+def _projections(i, s, n):
+    return (s[i, 0] * n[0, 0] + s[i, 1] * n[0, 1] + s[i, 2] * n[0, 2],
+            s[i, 0] * n[1, 0] + s[i, 1] * n[1, 1] + s[i, 2] * n[1, 2],
+            s[i, 0] * n[2, 0] + s[i, 1] * n[2, 1] + s[i, 2] * n[2, 2])
+
+
+@nb.njit(cache=True, inline="always")
+def _cubic_field(i, s, data):
+    K1, K2, n = data
+    a, b, c = _projections(i, s, n)
+    a2 = a * a
+    b2 = b * b
+    c2 = c * c
+    k1 = 2.0 * K1[i]
+    k2 = 2.0 * K2[i]
+    # B = −∂E/∂s = Σ_k f_k n_k with f_k = −∂E/∂(s·n_k)
+    fa = k1 * a * (b2 + c2) + k2 * a * b2 * c2
+    fb = k1 * b * (a2 + c2) + k2 * b * a2 * c2
+    fc = k1 * c * (a2 + b2) + k2 * c * a2 * b2
+    return (fa * n[0, 0] + fb * n[1, 0] + fc * n[2, 0],
+            fa * n[0, 1] + fb * n[1, 1] + fc * n[2, 1],
+            fa * n[0, 2] + fb * n[1, 2] + fc * n[2, 2])
+
+
+@nb.njit(cache=True, inline="always")
+def _cubic_energy(i, s, data):
+    K1, K2, n = data
+    a, b, c = _projections(i, s, n)
+    a2 = a * a
+    b2 = b * b
+    c2 = c * c
+    return -K1[i] * (a2 * b2 + b2 * c2 + a2 * c2) - K2[i] * a2 * b2 * c2
+
+
+class CubicAnisotropy(SingleSiteTerm):
+    r"""Cubic anisotropy with axes n₁, n₂, n₃ (LAMMPS ``fix precession/spin
+    cubic K1 K2c n1 n2 n3``):
+
+    .. math::
+
+        E = \sum_i \Big\{-K_1 \big[(\mathbf s_i\cdot\mathbf n_1)^2 (\mathbf s_i\cdot\mathbf n_2)^2
+            + (\mathbf s_i\cdot\mathbf n_2)^2 (\mathbf s_i\cdot\mathbf n_3)^2
+            + (\mathbf s_i\cdot\mathbf n_1)^2 (\mathbf s_i\cdot\mathbf n_3)^2\big]
+            - K_2\, (\mathbf s_i\cdot\mathbf n_1)^2 (\mathbf s_i\cdot\mathbf n_2)^2
+              (\mathbf s_i\cdot\mathbf n_3)^2\Big\},
+
+    B_i = −∂E/∂s_i. K1, K2 in eV (per species with a mapping ``{"Fe": K}``).
+    ``axes``: three non-zero 3-vectors, each normalised here (as LAMMPS, not
+    orthogonalised); default the Cartesian axes. With this sign K1 < 0 makes
+    the cube axes easy directions (bcc Fe), K1 > 0 the body diagonals (Ni).
+    The signs are those of LAMMPS's code (checked against it in tests/test_lammps.py).
+    """
+
+    name = "cubic_anisotropy"
+    site_field = _cubic_field
+    site_energy = _cubic_energy
+
+    _parameters = {"K1": "K1", "K2": "K2", "axes": "axes"}
+
+    def __init__(self, K1, K2=0.0, axes=None):
+        self.K1 = species_values(K1, "CubicAnisotropy K1", _energy_value)
+        self.K2 = species_values(K2, "CubicAnisotropy K2", _energy_value)
+        if axes is None:
+            axes = np.eye(3)
+        if np.ndim(axes) != 2 or len(axes) != 3:
+            raise ValueError(f"CubicAnisotropy axes must be three 3-vectors, got {axes!r}")
+        n = np.array([unit_vector(v, f"CubicAnisotropy axis {k + 1}")
+                      for k, v in enumerate(axes)])
+        n.setflags(write=False)
+        self.axes = n
+        self._finish()
+
+    def __repr__(self):
+        return f"CubicAnisotropy(K1={self.K1!r}, K2={self.K2!r}, axes={self.axes.tolist()})"
+
+    def bind(self, system):
+        return (per_atom(self.K1, system, "CubicAnisotropy K1"),
+                per_atom(self.K2, system, "CubicAnisotropy K2"), np.array(self.axes))
