@@ -162,7 +162,7 @@ class SpinLatticeDynamics(MolecularDynamics):
         self.frozen = self.frozen_lattice or self._all_fixed()
         q = real_array(atoms.positions, "positions").copy()
         st = State(q=q, p=momenta, s=np.ascontiguousarray(spins), mu=mu,
-                   rate=self._precession_rates(mu), EL=None,
+                   rate=self._precession_rates(mu), scales={}, EL=None,
                    EL_terms=None, observables=None,
                    # rounding errors of the last updates (compensated summation)
                    carry_q=np.zeros_like(q), carry_p=np.zeros_like(q),

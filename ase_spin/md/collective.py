@@ -209,7 +209,9 @@ class CollectivePRK(SpinLatticeDynamics):
         lattice). Returns (W, s̃, sweeps, how far W moved from the starting
         guess, the rounding error of s̃)."""
         st = self._state
-        scale = (h * self.sigma / self.hbar) * st.rate
+        scale = st.scales.get(h)
+        if scale is None:  # c_i = hσ r_i/ħ, one array per stage step size
+            scale = st.scales[h] = (h * self.sigma / self.hbar) * st.rate
         carry = np.zeros_like(s)
         stilde = np.zeros_like(s)
         args = (s, W, st.Wnext, stilde, scale, self.tol, 64.0 * self.tol, self.max_iter,
