@@ -203,10 +203,6 @@ class Evaluator:
         self._changes += 1
         self._bind()
 
-    def set_magnetic(self, magnetic):
-        """Set which atoms are magnetic (a boolean mask, 1 μB each)."""
-        self.set_moments(np.asarray(magnetic, dtype=bool))
-
     def _bind(self):
         self.system = System(self.species, self.moments, self.cell, self.pbc)
         self._tables = [t.bind(self.system) for t in self.hamiltonian.terms]

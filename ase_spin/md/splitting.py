@@ -14,6 +14,7 @@ import numpy as np
 
 from ase import units
 
+from ..terms.base import linear_pair_field
 from . import kernels
 from .base import SpinLatticeDynamics, UnstableStepError
 
@@ -148,6 +149,11 @@ def _site_arguments(operators):
 
 
 @nb.njit(cache=True, inline="always")
+def _plus(a, b):
+    return a[0] + b[0], a[1] + b[1], a[2] + b[2]
+
+
+@nb.njit(cache=True, inline="always")
 def _rotate(s, i, tx, ty, tz, exact):
     """Rotate spin i in place by θ = (tx, ty, tz) (Cayley or exact); returns θ²."""
     sx = s[i, 0]
@@ -190,14 +196,7 @@ def rotate_sweeps(row, nbr, J, s, tau, exact):
             i = a if sweep == 0 else n - 1 - a
             if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
                 continue
-            tx = 0.0
-            ty = 0.0
-            tz = 0.0
-            for k in range(row[i], row[i + 1]):
-                j = nbr[k]
-                tx += J[k] * s[j, 0]
-                ty += J[k] * s[j, 1]
-                tz += J[k] * s[j, 2]
+            tx, ty, tz = linear_pair_field(i, s, row, nbr, J)
             c = tau[i]
             t2 = _rotate(s, i, c * tx, c * ty, c * tz, exact)
             if not t2 <= largest and largest == largest:  # a NaN stays
@@ -218,27 +217,12 @@ def rotate_sweeps_sites(s, tau, exact, f0, d0, f1, d1, f2, d2, f3, d3, f4, d4, f
             i = a if sweep == 0 else n - 1 - a
             if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
                 continue
-            tx, ty, tz = f0(i, s, d0)
-            x, y, z = f1(i, s, d1)
-            tx += x
-            ty += y
-            tz += z
-            x, y, z = f2(i, s, d2)
-            tx += x
-            ty += y
-            tz += z
-            x, y, z = f3(i, s, d3)
-            tx += x
-            ty += y
-            tz += z
-            x, y, z = f4(i, s, d4)
-            tx += x
-            ty += y
-            tz += z
-            x, y, z = f5(i, s, d5)
-            tx += x
-            ty += y
-            tz += z
+            t = f0(i, s, d0)
+            t = _plus(t, f1(i, s, d1))
+            t = _plus(t, f2(i, s, d2))
+            t = _plus(t, f3(i, s, d3))
+            t = _plus(t, f4(i, s, d4))
+            tx, ty, tz = _plus(t, f5(i, s, d5))
             c = tau[i]
             t2 = _rotate(s, i, c * tx, c * ty, c * tz, exact)
             if not t2 <= largest and largest == largest:  # a NaN stays

@@ -12,10 +12,6 @@ from .base import SingleSiteTerm, per_atom, species_values
 __all__ = ["UniaxialAnisotropy", "CubicAnisotropy"]
 
 
-def _energy_value(value, what):
-    return real_scalar(value, what)
-
-
 @nb.njit(cache=True, inline="always")
 def _uniaxial_field(i, s, data):
     K, n = data
@@ -51,7 +47,7 @@ class UniaxialAnisotropy(SingleSiteTerm):
     _parameters = {"K": "K", "axis": "axis"}
 
     def __init__(self, K, axis):
-        self.K = species_values(K, "UniaxialAnisotropy K", _energy_value)
+        self.K = species_values(K, "UniaxialAnisotropy K", real_scalar)
         self.axis = unit_vector(axis, "UniaxialAnisotropy axis")
         self._finish()
 
@@ -123,8 +119,8 @@ class CubicAnisotropy(SingleSiteTerm):
     _parameters = {"K1": "K1", "K2": "K2", "axes": "axes"}
 
     def __init__(self, K1, K2=0.0, axes=None):
-        self.K1 = species_values(K1, "CubicAnisotropy K1", _energy_value)
-        self.K2 = species_values(K2, "CubicAnisotropy K2", _energy_value)
+        self.K1 = species_values(K1, "CubicAnisotropy K1", real_scalar)
+        self.K2 = species_values(K2, "CubicAnisotropy K2", real_scalar)
         if axes is None:
             axes = np.eye(3)
         if np.ndim(axes) != 2 or len(axes) != 3:

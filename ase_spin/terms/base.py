@@ -6,6 +6,7 @@ import itertools
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from ..validate import real_scalar
@@ -259,6 +260,21 @@ class SpinOperator:
         raise NotImplementedError
 
 
+@nb.njit(cache=True, inline="always")
+def linear_pair_field(i, s, row, nbr, c):
+    """B_i = Σ_j c_k s_j over row i of a pair list: the field of a term in the
+    ``linear_pairs`` form, from the spins as they are."""
+    bx = 0.0
+    by = 0.0
+    bz = 0.0
+    for k in range(row[i], row[i + 1]):
+        j = nbr[k]
+        bx += c[k] * s[j, 0]
+        by += c[k] * s[j, 1]
+        bz += c[k] * s[j, 2]
+    return bx, by, bz
+
+
 class SpinTerm(Term):
     """A spin-dependent term.
 
@@ -318,8 +334,6 @@ def compile_site_pass(field, energy, name):
     of the functions it calls)."""
     import hashlib
     import types
-
-    import numba as nb
 
     code = hashlib.sha1()
     for f in (field, energy):

@@ -9,8 +9,8 @@ from .. import threads
 from ..neighbors import balanced_chunks, reduce_threads, reduce_threads_serial, separation
 from ..threads import threaded
 from ..validate import flag, length, real_scalar
-from .base import (Parameterised, SpinOperator, SpinTerm, is_pair_mapping, pair_values,
-                   resolve_pairs)
+from .base import (Parameterised, SpinOperator, SpinTerm, is_pair_mapping,
+                   linear_pair_field, pair_values, resolve_pairs)
 
 __all__ = ["Coupling", "BetheSlater", "Cubic", "Exchange", "ExchangeOperator"]
 
@@ -207,15 +207,7 @@ def _field(pairs, J, W, out):
 def _exchange_site(i, s, data):
     """B_i = Σ_j J_ij s_j from the spins as they are (full pair list)."""
     row, nbr, J = data
-    bx = 0.0
-    by = 0.0
-    bz = 0.0
-    for k in range(row[i], row[i + 1]):
-        j = nbr[k]
-        bx += J[k] * s[j, 0]
-        by += J[k] * s[j, 1]
-        bz += J[k] * s[j, 2]
-    return bx, by, bz
+    return linear_pair_field(i, s, row, nbr, J)
 
 
 class Exchange(SpinTerm):
