@@ -7,8 +7,8 @@ from .io import complete_frames, recover_trajectory
 from .md import (HBAR, CollectivePRK, IntegrationError, SpinConvergenceError,
                  SpinLatticeDynamics, SpinMDLogger, SuzukiTrotter, UnstableStepError)
 from .spins import get_moments, get_spins, set_spins
-from .terms import (BetheSlater, Coupling, Cubic, Exchange, LennardJones, Term,
-                    CubicAnisotropy, UniaxialAnisotropy, Zeeman)
+from .terms import (BetheSlater, BiquadraticExchange, Coupling, Cubic, Exchange, LennardJones, Term,
+                    CubicAnisotropy, DMI, UniaxialAnisotropy, Zeeman)
 
 __version__ = "0.1.0"
 
@@ -19,5 +19,5 @@ __all__ = [
     "SpinConvergenceError", "UnstableStepError", "SpinMDLogger", "HBAR", "HBAR_LAMMPS", "MU_B", "MU_B_LAMMPS",
     "recover_trajectory", "complete_frames",
     "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic", "Zeeman",
-    "UniaxialAnisotropy", "CubicAnisotropy",
+    "UniaxialAnisotropy", "CubicAnisotropy", "DMI", "BiquadraticExchange",
 ]

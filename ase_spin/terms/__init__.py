@@ -2,6 +2,8 @@
 energy, forces, magnetic forces (spin terms) and virial."""
 
 from .anisotropy import CubicAnisotropy, UniaxialAnisotropy
+from .biquadratic import BiquadraticExchange
+from .dmi import DMI
 from .base import SingleSiteTerm, SpinOperator, SpinTerm, Term
 from .exchange import BetheSlater, Coupling, Cubic, Exchange, ExchangeOperator
 from .lennard_jones import LennardJones
@@ -9,4 +11,5 @@ from .zeeman import Zeeman
 
 __all__ = ["Term", "SpinTerm", "SingleSiteTerm", "SpinOperator", "LennardJones", "Exchange",
            "Coupling", "BetheSlater", "Cubic", "ExchangeOperator", "Zeeman",
-           "UniaxialAnisotropy", "CubicAnisotropy"]
+           "UniaxialAnisotropy", "CubicAnisotropy", "DMI",
+           "BiquadraticExchange"]

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from ..neighbors import balanced_chunks
 from ..validate import real_scalar
 
 __all__ = ["Term", "SpinTerm", "SpinOperator", "System", "Parameterised", "PairParameters",
@@ -332,18 +333,7 @@ def compile_site_pass(field, energy, name):
     By, Bz)`` and ``energy(i, s, data) -> E_i``, cached on disk under a name
     that changes with their code (a cached skeleton must not outlive an edit
     of the functions it calls)."""
-    import hashlib
-    import types
-
-    code = hashlib.sha1()
-    for f in (field, energy):
-        code.update(f.py_func.__code__.co_code)
-        code.update(repr(f.py_func.__code__.co_consts).encode())
-    glob = dict(_site_pass.__globals__, site_field=field, site_energy=energy)
-    fn = types.FunctionType(_site_pass.__code__, glob, f"_site_pass_{name}")
-    fn.__qualname__ = f"_site_pass_{name}_{code.hexdigest()[:12]}"
-    fn.__module__ = _site_pass.__module__
-    return nb.njit(cache=True)(fn)
+    return _compile_with(_site_pass, {"site_field": field, "site_energy": energy}, name)
 
 
 class SiteOperator(SpinOperator):
@@ -425,3 +415,178 @@ def per_atom(value, system, what):
             raise ValueError(f"{what}: no value for the magnetic species {sym}; give one "
                              "(0 switches the term off for it)")
     return np.where(magnetic, table[system.types], 0.0)
+
+
+# -- pair spin terms ----------------------------------------------------------------
+
+
+def _pair_pass(nthreads, row, nbr, half, s, data, B, F, energies, want_b, want_f,
+               want_energy, want_energies, want_virial):
+    """Skeleton of every pair spin term's pass over a pair list (compiled once
+    per term, with ``pair_field`` and ``pair_energy`` bound to that term's
+    functions). For each pair k = (i → j) of row i:
+
+        B_i += b(k, i, j, s, data, False)      (half list: B_j += b(k, j, i, s, data, True))
+        (e, f, d) = pair_energy(k, i, j, s, data):  E += e,  F_j += f,  F_i −= f,
+        e_i, e_j += ½e,  W −= sym(f ⊗ d)
+
+    with f = −∂e/∂r_j the force on j and d = r_j + S − r_i. A full list holds
+    each pair twice: there row i adds only to atom i, and halves e and W.
+    Returns (E, W in Voigt order xx yy zz yz xz xy)."""
+    n = len(row) - 1
+    bounds = balanced_chunks(row, nthreads)
+    scatter = half
+    nb_ = n if scatter else 0
+    bbuf = np.zeros((nthreads, nb_ if want_b else 0, 3))
+    fbuf = np.zeros((nthreads, nb_ if want_f else 0, 3))
+    ebuf = np.zeros((nthreads, nb_ if want_energies else 0))
+    acc = np.zeros((nthreads, 7))
+    need_e = want_f or want_energy or want_energies or want_virial
+    w = 1.0 if half else 0.5
+    for t in nb.prange(nthreads):
+        v = np.zeros(7)
+        for i in range(bounds[t], bounds[t + 1]):
+            if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+                continue
+            bx = 0.0
+            by = 0.0
+            bz = 0.0
+            fx = 0.0
+            fy = 0.0
+            fz = 0.0
+            ei = 0.0
+            for k in range(row[i], row[i + 1]):
+                j = nbr[k]
+                if want_b:
+                    cx, cy, cz = pair_field(k, i, j, s, data, False)  # noqa: F821
+                    bx += cx
+                    by += cy
+                    bz += cz
+                    if scatter:
+                        cx, cy, cz = pair_field(k, j, i, s, data, True)  # noqa: F821
+                        bbuf[t, j, 0] += cx
+                        bbuf[t, j, 1] += cy
+                        bbuf[t, j, 2] += cz
+                if need_e:
+                    e, gx, gy, gz, dx, dy, dz = pair_energy(k, i, j, s, data)  # noqa: F821
+                    ei += 0.5 * e
+                    v[0] += w * e
+                    fx -= gx
+                    fy -= gy
+                    fz -= gz
+                    if scatter:
+                        if want_f:
+                            fbuf[t, j, 0] += gx
+                            fbuf[t, j, 1] += gy
+                            fbuf[t, j, 2] += gz
+                        if want_energies:
+                            ebuf[t, j] += 0.5 * e
+                    if want_virial:
+                        v[1] -= w * gx * dx
+                        v[2] -= w * gy * dy
+                        v[3] -= w * gz * dz
+                        v[4] -= 0.5 * w * (gy * dz + gz * dy)
+                        v[5] -= 0.5 * w * (gx * dz + gz * dx)
+                        v[6] -= 0.5 * w * (gx * dy + gy * dx)
+            if scatter:
+                if want_b:
+                    bbuf[t, i, 0] += bx
+                    bbuf[t, i, 1] += by
+                    bbuf[t, i, 2] += bz
+                if want_f:
+                    fbuf[t, i, 0] += fx
+                    fbuf[t, i, 1] += fy
+                    fbuf[t, i, 2] += fz
+                if want_energies:
+                    ebuf[t, i] += ei
+            else:  # row i belongs to this thread alone
+                if want_b:
+                    B[i, 0] += bx
+                    B[i, 1] += by
+                    B[i, 2] += bz
+                if want_f:
+                    F[i, 0] += fx
+                    F[i, 1] += fy
+                    F[i, 2] += fz
+                if want_energies:
+                    energies[i] += ei
+        for c in range(7):
+            acc[t, c] = v[c]
+    if scatter:
+        for i in nb.prange(n):
+            for t in range(nthreads):
+                if want_b:
+                    for c in range(3):
+                        B[i, c] += bbuf[t, i, c]
+                if want_f:
+                    for c in range(3):
+                        F[i, c] += fbuf[t, i, c]
+                if want_energies:
+                    energies[i] += ebuf[t, i]
+    return acc.sum(axis=0)
+
+
+def compile_pair_pass(field, energy, name):
+    """:func:`_pair_pass` for one term's compiled ``field(k, a, b, s, data,
+    reverse) -> (Bx, By, Bz)`` (the field on spin a from spin b over pair k,
+    ``reverse`` when a is the pair's second atom) and ``energy(k, i, j, s,
+    data) -> (e, fx, fy, fz, dx, dy, dz)``, cached on disk under a name that
+    changes with their code."""
+    return _compile_with(_pair_pass, {"pair_field": field, "pair_energy": energy}, name,
+                         parallel=True)
+
+
+def _compile_with(skeleton, functions, name, parallel=False):
+    import hashlib
+    import types
+
+    code = hashlib.sha1()
+    for f in functions.values():
+        code.update(f.py_func.__code__.co_code)
+        code.update(repr(f.py_func.__code__.co_consts).encode())
+    glob = dict(skeleton.__globals__, **functions)
+    fn = types.FunctionType(skeleton.__code__, glob, f"{skeleton.__name__}_{name}")
+    fn.__qualname__ = f"{skeleton.__name__}_{name}_{code.hexdigest()[:12]}"
+    fn.__module__ = skeleton.__module__
+    if parallel:
+        return nb.njit(cache=True, parallel=True, error_model="numpy")(fn)
+    return nb.njit(cache=True)(fn)
+
+
+class PairOperator(SpinOperator):
+    """The operator of a pair spin term built on :func:`_pair_pass`: per-pair
+    data prepared at one set of positions (``data``; ``mean_data``, the same
+    tuple with the midpoint quantities where the field reads them) and the
+    term's compiled pass."""
+
+    __slots__ = ("pairs", "data", "mean_data", "_pass", "site_function", "extra")
+
+    def __init__(self, pairs, data, mean_data, pair_pass, site_function=None):
+        self.pairs = pairs
+        self.data = data
+        self.mean_data = mean_data
+        self._pass = pair_pass
+        self.site_function = site_function
+
+    @property
+    def site(self):
+        if self.pairs.half or self.site_function is None:
+            return None
+        return self.site_function, (self.pairs.row, self.pairs.j, *self.data)
+
+    def field(self, W, out, mean=False):
+        from .. import threads
+
+        data = self.mean_data if mean else self.data
+        p = self.pairs
+        self._pass(threads.count(), p.row, p.j, p.half, W, data, out, _NO_FIELD,
+                   _NO_SITE_ENERGIES, True, False, False, False, False)
+
+    def add(self, W, want, magnetic_forces, forces, energies):
+        from .. import threads
+
+        p = self.pairs
+        out = self._pass(threads.count(), p.row, p.j, p.half, W, self.data, magnetic_forces,
+                         forces, energies, want.magnetic_forces, want.forces, want.energy,
+                         want.energies, want.virial)
+        return out[0], np.array(out[1:])

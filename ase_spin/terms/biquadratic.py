@@ -1,0 +1,137 @@
+"""Bilinear plus biquadratic exchange (LAMMPS ``pair_style spin/exchange/biquadratic``)."""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from ..validate import flag
+from .base import PairOperator, SpinTerm, compile_pair_pass
+from .exchange import Exchange
+
+__all__ = ["BiquadraticExchange"]
+
+_NO_D = np.zeros((0, 3))
+
+
+@nb.njit(cache=True, inline="always")
+def _field(k, a, b, s, data, reverse):
+    """Field on spin a from spin b: [J + 2K (s_a·s_b)] s_b."""
+    J = data[0]
+    K = data[1]
+    w = s[a, 0] * s[b, 0] + s[a, 1] * s[b, 1] + s[a, 2] * s[b, 2]
+    c = J[k] + 2.0 * K[k] * w
+    return c * s[b, 0], c * s[b, 1], c * s[b, 2]
+
+
+@nb.njit(cache=True, inline="always")
+def _energy(k, i, j, s, data):
+    """e = −[J (w − c) + K (w² − c)], w = s_i·s_j; the force on j,
+    f = (w − c) J' d/r + (w² − c) K' d/r; d_ij."""
+    J, K, G, H, D, c = data
+    w = s[i, 0] * s[j, 0] + s[i, 1] * s[j, 1] + s[i, 2] * s[j, 2]
+    a = w - c
+    b = w * w - c
+    e = -(J[k] * a + K[k] * b)
+    fx = a * G[k, 0] + b * H[k, 0]
+    fy = a * G[k, 1] + b * H[k, 1]
+    fz = a * G[k, 2] + b * H[k, 2]
+    if D.shape[0] > 0:
+        return e, fx, fy, fz, D[k, 0], D[k, 1], D[k, 2]
+    return e, fx, fy, fz, 0.0, 0.0, 0.0
+
+
+@nb.njit(cache=True, inline="always")
+def _site(i, s, data):
+    """B_i = Σ_j [J_ij + 2 K_ij (s_i·s_j)] s_j from the spins as they are (full list)."""
+    row, nbr, J, K = data[0], data[1], data[2], data[3]
+    bx = 0.0
+    by = 0.0
+    bz = 0.0
+    for k in range(row[i], row[i + 1]):
+        j = nbr[k]
+        c = J[k] + 2.0 * K[k] * (s[i, 0] * s[j, 0] + s[i, 1] * s[j, 1] + s[i, 2] * s[j, 2])
+        bx += c * s[j, 0]
+        by += c * s[j, 1]
+        bz += c * s[j, 2]
+    return bx, by, bz
+
+
+class BiquadraticExchange(SpinTerm):
+    r"""Bilinear and biquadratic exchange (LAMMPS ``pair_style
+    spin/exchange/biquadratic``):
+
+    .. math::
+
+        E = -\sum_{i<j} \left[ J(r_{ij}) (\mathbf s_i\cdot\mathbf s_j - c)
+            + K(r_{ij}) \big((\mathbf s_i\cdot\mathbf s_j)^2 - c\big) \right],
+        \qquad c = 1 \text{ if offset else } 0,
+
+    .. math::
+
+        \mathbf B_i = \sum_j \left[J(r_{ij}) + 2K(r_{ij})\,
+            (\mathbf s_i\cdot\mathbf s_j)\right] \mathbf s_j, \qquad
+        \mathbf F_j = \left[J'(r_{ij})(\mathbf s_i\cdot\mathbf s_j - c)
+            + K'(r_{ij})\big((\mathbf s_i\cdot\mathbf s_j)^2 - c\big)\right]
+            \frac{\mathbf r_j - \mathbf r_i}{r_{ij}},
+
+    each pair once, J and K zero beyond ``rc``. ``J`` and ``K`` are couplings
+    as for :class:`~ase_spin.terms.exchange.Exchange` (LAMMPS's ``biquadratic
+    rc J1 J2 J3 K1 K2 K3`` is ``J=BetheSlater(J1, J2, J3), K=BetheSlater(K1,
+    K2, K3)``), or mappings keyed by pairs of chemical symbols. K > 0 favours
+    collinear (parallel or antiparallel) pairs. ``offset=True`` is LAMMPS's
+    ``offset yes``.
+    """
+
+    name = "biquadratic_exchange"
+
+    _parameters = {"J": "J", "K": "K", "rc": "rc", "offset": "offset"}
+
+    def __init__(self, J, K, rc=None, offset=False):
+        bilinear = Exchange(J, rc)
+        self.offset = flag(offset, "BiquadraticExchange offset")
+        self.J = bilinear.coupling
+        self.K = Exchange(K, bilinear.rc).coupling
+        self.rc = bilinear.rc
+        self.cutoff = self.rc
+        self._finish()
+
+    def __repr__(self):
+        return (f"BiquadraticExchange(J={self.J!r}, K={self.K!r}, rc={self.rc}, "
+                f"offset={self.offset})")
+
+    @classmethod
+    def _compiled_pass(cls):
+        if "_pair_pass" not in cls.__dict__:
+            cls._pair_pass = compile_pair_pass(_field, _energy, cls.__name__)
+        return cls._pair_pass
+
+    def _parts(self):
+        """J and K each as an exchange term: their tables and pair geometry."""
+        parts = self.__dict__.get("_parts_cache")
+        if parts is None or parts[0] != self._version:
+            parts = (self._version, Exchange(self.J, self.rc), Exchange(self.K, self.rc))
+            self.__dict__["_parts_cache"] = parts
+        return parts[1:]
+
+    def bind(self, system):
+        J, K = self._parts()
+        return J.bind(system), K.bind(system)
+
+    def prepare(self, positions, pairs, types, bound, *, virial=False, out=None,
+                mean_with=None):
+        J, K = self._parts()
+        previous = out.extra if out is not None and out.pairs is pairs else (None, None)
+        other = mean_with.extra if mean_with is not None else (None, None)
+        opJ = J.prepare(positions, pairs, types, bound[0], virial=virial, out=previous[0],
+                        mean_with=other[0])
+        opK = K.prepare(positions, pairs, types, bound[1], virial=virial, out=previous[1],
+                        mean_with=other[1])
+        c = 1.0 if self.offset else 0.0
+        D = opJ.D if opJ.D is not None else _NO_D
+        data = (opJ.J, opK.J, opJ.G, opK.G, D, c)
+        mean_data = ((opJ.Jbar, opK.Jbar, opJ.G, opK.G, D, c) if opJ.Jbar is not None
+                     else None)
+        op = PairOperator(pairs, data, mean_data, self._compiled_pass(), _site)
+        op.extra = (opJ, opK)
+        return op
