@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from ase.calculators.calculator import Calculator, PropertyNotImplementedError, all_changes
 
-from .hamiltonian import Hamiltonian, Want
+from .hamiltonian import AtomsTooCloseError, Hamiltonian, Want
 from .spins import get_moments, split_moments
 
 __all__ = ["SpinLatticeCalculator"]
@@ -32,8 +32,11 @@ class SpinLatticeCalculator(Calculator):
       for non-magnetic atoms;
     - ``magmoms``: the (N, 3) moment vectors μ_i s_i.
 
-    ``results['energy_terms']`` splits the energy by term. Only what is asked
-    for is computed.
+    ``results['energy_terms']`` splits the energy by term. Energy, forces and
+    magnetic forces come from one pass whenever any of them is asked for (as
+    ASE's own calculators compute energy and forces together: an optimiser or
+    ASE's MD asks for both every step); per-atom energies and stress only
+    when asked for.
     """
 
     implemented_properties = ["energy", "free_energy", "energies", "forces", "stress",
@@ -95,14 +98,26 @@ class SpinLatticeCalculator(Calculator):
                 "stress needs a cell with three non-zero, independent vectors")
         ev, moments = self.bound_evaluator(atoms)
         spins, _ = split_moments(moments)
+        # one pass over the pairs gives energy, forces and magnetic forces
+        # together for little more than any one of them
+        together = bool({"energy", "free_energy", "forces", "magnetic_forces"}
+                        & set(properties))
         want = Want(
-            energy=bool({"energy", "free_energy"} & set(properties)),
+            energy=together or bool({"energies", "stress"} & set(properties)),
             energies="energies" in properties,
-            forces="forces" in properties,
-            magnetic_forces="magnetic_forces" in properties,
+            forces=together,
+            magnetic_forces=together,
             virial=want_stress,
         )
-        res = ev.evaluate(atoms.positions, spins, want)
+        try:
+            res = ev.evaluate(atoms.positions, spins, want)
+        except AtomsTooCloseError:
+            if {"energy", "free_energy", "forces", "energies", "stress"} & set(properties):
+                raise
+            # overlapping atoms: energy and forces are infinite, B = −∂E/∂s is
+            # not (J(0) is finite) and was all that was asked for
+            want = Want(magnetic_forces=True)
+            res = ev.evaluate(atoms.positions, spins, want)
         if want.energy:
             self.results["energy"] = self.results["free_energy"] = res.energy
             self.results["energy_terms"] = dict(res.energy_terms)

