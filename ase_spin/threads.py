@@ -11,13 +11,16 @@ twin from that.
 
 from __future__ import annotations
 
+import os
 import threading
+import time
 import types
 from contextlib import contextmanager
 
 import numba as nb
 
-__all__ = ["SERIAL_BELOW", "threads_for", "count", "threaded", "serial_twin"]
+__all__ = ["SERIAL_BELOW", "threads_for", "count", "threaded", "serial_twin",
+           "AdaptiveThreads"]
 
 #: Systems with fewer atoms than this run the serial twins.
 SERIAL_BELOW = 1500
@@ -41,9 +44,16 @@ def threads_for(natoms):
         _mode.serial = previous
 
 
+def chunks():
+    """Chunks the threaded kernels split their work into: numba's configured
+    thread count, fixed for the process (not the active count, which
+    :class:`AdaptiveThreads` may lower)."""
+    return nb.config.NUMBA_NUM_THREADS
+
+
 def count():
-    """Threads the current kernels use (1 when serial)."""
-    return 1 if _mode.serial else nb.get_num_threads()
+    """Chunks of work for the current kernels (1 when serial)."""
+    return 1 if _mode.serial else chunks()
 
 
 def serial_twin(dispatcher, **replace):
@@ -102,5 +112,102 @@ def threaded(always=False, **replace):
 
 
 def all_threads():
-    """numba's thread count, whatever the system size."""
-    return nb.get_num_threads()
+    """Chunks of work for kernels threaded whatever the system size."""
+    return chunks()
+
+
+def _threads_setting(value):
+    """``threads=``: "auto", or a count from 1 to numba's configured maximum."""
+    if value is None:
+        value = os.environ.get("ASE_SPIN_THREADS", "auto")
+    if isinstance(value, str):
+        if value.strip().lower() == "auto":
+            return None
+        try:
+            value = int(value)
+        except ValueError:
+            raise ValueError(f'threads must be "auto" or a whole number, got {value!r}') from None
+    if isinstance(value, bool) or not hasattr(value, "__index__"):
+        raise TypeError(f'threads must be "auto" or a whole number, got {value!r}')
+    value = int(value.__index__())
+    if not 1 <= value <= chunks():
+        raise ValueError(f"threads must lie between 1 and {chunks()} (NUMBA_NUM_THREADS), "
+                         f"got {value}")
+    return value
+
+
+class AdaptiveThreads:
+    """The number of threads for the steps of a run, chosen by timing them.
+
+    ``threads="auto"`` (the default; or the environment variable
+    ``ASE_SPIN_THREADS``): every step runs with all configured threads or with
+    one, whichever made the last measured step faster. The current choice is
+    timed at every step, so a core taken by another process shows at once; the
+    other choice is timed again once per ``probe`` seconds of wall time (the
+    interval doubles, up to 64 s, while it keeps losing). A busy machine thus
+    costs at most about what it costs a single-threaded code, and an idle one
+    keeps the threads. A whole number fixes the count. Results are the same
+    bit for bit whatever is chosen (see the module's docstring).
+    """
+
+    def __init__(self, threads=None, probe=1.0):
+        self.fixed = _threads_setting(threads)
+        self.most = chunks()
+        self.time = {}  # threads -> last measured step time (s)
+        self.seen = {}  # threads -> steps timed (the first, with compilation, is dropped)
+        self.choice = self.fixed or self.most
+        self._probe = probe
+        self._interval = probe
+        self._next_probe = 0.0
+        self._probing = False
+
+    @property
+    def setting(self):
+        return "auto" if self.fixed is None else self.fixed
+
+    def _best(self):
+        if len(self.time) < 2:
+            return None
+        return min(self.time, key=self.time.get)
+
+    def _choose(self):
+        self._probing = False
+        if self.fixed is not None or self.most == 1:
+            return self.fixed or 1
+        for n in (self.most, 1):
+            if n not in self.time:
+                return n
+        best = self._best()
+        now = time.perf_counter()
+        if now >= self._next_probe:
+            self._next_probe = now + self._interval
+            self._probing = True
+            return 1 if best == self.most else self.most
+        return best
+
+    def _record(self, n, elapsed):
+        self.seen[n] = self.seen.get(n, 0) + 1
+        if self.seen[n] == 1:  # the first step at a count may include compilation
+            return
+        before = self._best()
+        self.time[n] = elapsed
+        if self._probing and before is not None:
+            # a probe that lost again: probe less often; one that won: often again
+            lost = self._best() == before
+            self._interval = min(64.0, 2.0 * self._interval) if lost else self._probe
+
+    @contextmanager
+    def step(self, natoms):
+        """Run one step inside: sets the thread count (and the serial twins
+        for a small system), times the step, restores numba's setting."""
+        n = self._choose()
+        previous = nb.get_num_threads()
+        nb.set_num_threads(n)
+        t0 = time.perf_counter()
+        try:
+            with threads_for(natoms):
+                yield
+        finally:
+            nb.set_num_threads(previous)
+        self.choice = n
+        self._record(n, time.perf_counter() - t0)

@@ -27,6 +27,7 @@ from ..hamiltonian import Want
 from ..io import check_trajectory_target
 from ..neighbors import max_displacement
 from ..spins import _name_atoms, split_moments
+from ..threads import AdaptiveThreads
 from ..validate import flag, positive_scalar, real_array, real_scalar
 from . import kernels
 from .compositions import composition_coefficients
@@ -99,15 +100,18 @@ class SpinLatticeDynamics(MolecularDynamics):
     moment, LAMMPS SPIN's equation; "moment": ds_i/dt = (σ g/(μ_i ħ)) s_i × B_i,
     the Landau–Lifshitz precession of a moment μ_i μB, with ``g`` = 2 by
     default), ``order``/``composition`` (symmetric compositions of the step),
-    ``lattice`` ("moving" or "frozen"), and ASE's ``trajectory``, ``logfile``,
-    ``loginterval``, ``append_trajectory``.
+    ``lattice`` ("moving" or "frozen"), ``threads`` ("auto": all configured
+    threads or one, whichever runs the steps faster right now, see
+    :class:`~ase_spin.threads.AdaptiveThreads`; or a fixed count; default from
+    the environment variable ``ASE_SPIN_THREADS``), and ASE's ``trajectory``,
+    ``logfile``, ``loginterval``, ``append_trajectory``.
     """
 
     half_lists = True
 
     def __init__(self, atoms, timestep, *, hbar=None, precession="moment",
                  gyromagnetic="lammps", g=2.0, order=2, composition=None, lattice="moving",
-                 trajectory=None, logfile=None, loginterval=1, **kwargs):
+                 threads=None, trajectory=None, logfile=None, loginterval=1, **kwargs):
         if not isinstance(precession, str) or precession not in ("moment", "spin"):
             raise ValueError(f'precession must be "moment" or "spin", got {precession!r}')
         if not isinstance(gyromagnetic, str) or gyromagnetic not in ("lammps", "moment"):
@@ -124,6 +128,7 @@ class SpinLatticeDynamics(MolecularDynamics):
         self.hbar = HBAR if hbar is None else positive_scalar(hbar, "hbar")
         self.order, self.gammas = composition_coefficients(order, composition)
         self.frozen_lattice = lattice == "frozen"
+        self.threads = AdaptiveThreads(threads)
         check_trajectory_target(trajectory, flag(kwargs.get("append_trajectory", False),
                                                  "append_trajectory"))
         super().__init__(atoms, timestep, trajectory=trajectory, logfile=None,
@@ -139,7 +144,8 @@ class SpinLatticeDynamics(MolecularDynamics):
 
     def todict(self):
         return {**super().todict(), "order": self.order, "precession": self.precession,
-                "gyromagnetic": self.gyromagnetic, "g": self.g, "hbar": self.hbar}
+                "gyromagnetic": self.gyromagnetic, "g": self.g, "hbar": self.hbar,
+                "threads": self.threads.setting}
 
     # -- set-up and staleness --------------------------------------------------
     def _initialize(self):
@@ -252,7 +258,7 @@ class SpinLatticeDynamics(MolecularDynamics):
 
     def step(self):
         """Advance by one time step (all composition stages)."""
-        with threads.threads_for(len(self.atoms)):
+        with self.threads.step(len(self.atoms)):
             self._step()
 
     def irun(self, steps=50):
@@ -266,7 +272,7 @@ class SpinLatticeDynamics(MolecularDynamics):
             self.call_observers()
         yield self.nsteps == self.max_steps
         while self.nsteps < self.max_steps:
-            with threads.threads_for(len(self.atoms)):
+            with self.threads.step(len(self.atoms)):
                 self._step(count=True)
             self._refresh_properties()
             self.log()

@@ -187,9 +187,10 @@ class ExchangeOperator(SpinOperator):
                                          energies, want.magnetic_forces, want.forces,
                                          want.energy, want.energies, want_virial)
         else:
-            out = _spin_pass_kernel(pairs.row, pairs.j, self.J, self.G, D, W, self.offset,
-                                    magnetic_forces, forces, energies, want.magnetic_forces,
-                                    want.forces, want.energy, want.energies, want_virial)
+            out = _spin_pass_kernel(threads.count(), pairs.row, pairs.j, self.J, self.G, D, W,
+                                    self.offset, magnetic_forces, forces, energies,
+                                    want.magnetic_forces, want.forces, want.energy,
+                                    want.energies, want_virial)
         return out[0], np.array(out[1:])
 
 
@@ -199,8 +200,8 @@ def _field(pairs, J, W, out):
         _spin_pass_half_kernel(threads.count(), pairs.row, pairs.j, J, _NO_D, _NO_D, W, 0.0,
                                out, _NO_D, _NO_EX, True, False, False, False, False)
     else:
-        _spin_pass_kernel(pairs.row, pairs.j, J, _NO_D, _NO_D, W, 0.0, out, _NO_D, _NO_EX,
-                          True, False, False, False, False)
+        _spin_pass_kernel(threads.count(), pairs.row, pairs.j, J, _NO_D, _NO_D, W, 0.0, out,
+                          _NO_D, _NO_EX, True, False, False, False, False)
 
 
 @nb.njit(cache=True, inline="always")
@@ -438,69 +439,82 @@ def _geometry_single(pos, row, nbr, image, images, rc2, form, p0, p1, p2, J, G, 
 
 
 @threaded()
-def _spin_pass_kernel(row, nbr, J, G, D, s, c, B, F, energies,
+def _spin_pass_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
                       want_b, want_f, want_energy, want_energies, want_virial):
     """One pass over the exchange pairs for spins s (full list, gather into i):
 
     B_i += Σ_j J_ij s_j,   F_i += −Σ_j (s_i·s_j − c) G_ij,
     e_i += −½ Σ_j J_ij (s_i·s_j − c),   W += −½ Σ_ij (s_i·s_j − c) G_ij ⊗ d_ij.
+
+    Rows in ``nthreads`` fixed chunks, each summing its own energy and virial:
+    the sums do not depend on how many threads run the chunks.
     """
-    n = len(row) - 1
-    e = 0.0
-    vxx = 0.0
-    vyy = 0.0
-    vzz = 0.0
-    vyz = 0.0
-    vxz = 0.0
-    vxy = 0.0
+    bounds = balanced_chunks(row, nthreads)
+    acc = np.zeros((nthreads, 7))
     need_dot = want_f or want_energy or want_energies or want_virial
-    for i in nb.prange(n):
-        sx = s[i, 0]
-        sy = s[i, 1]
-        sz = s[i, 2]
-        bx = 0.0
-        by = 0.0
-        bz = 0.0
-        fx = 0.0
-        fy = 0.0
-        fz = 0.0
-        ei = 0.0
-        for k in range(row[i], row[i + 1]):
-            j = nbr[k]
-            Jk = J[k]
-            tx = s[j, 0]
-            ty = s[j, 1]
-            tz = s[j, 2]
-            bx += Jk * tx
-            by += Jk * ty
-            bz += Jk * tz
-            if need_dot:
-                w = sx * tx + sy * ty + sz * tz - c
-                fx -= w * G[k, 0]
-                fy -= w * G[k, 1]
-                fz -= w * G[k, 2]
-                ei -= 0.5 * Jk * w
-                if want_virial:
-                    h = -0.5 * w
-                    vxx += h * G[k, 0] * D[k, 0]
-                    vyy += h * G[k, 1] * D[k, 1]
-                    vzz += h * G[k, 2] * D[k, 2]
-                    vyz += h * G[k, 1] * D[k, 2]
-                    vxz += h * G[k, 0] * D[k, 2]
-                    vxy += h * G[k, 0] * D[k, 1]
-        if want_b:
-            B[i, 0] += bx
-            B[i, 1] += by
-            B[i, 2] += bz
-        if want_f:
-            F[i, 0] += fx
-            F[i, 1] += fy
-            F[i, 2] += fz
-        if want_energies:
-            energies[i] += ei
-        if want_energy:
-            e += ei
-    return e, vxx, vyy, vzz, vyz, vxz, vxy
+    for t in nb.prange(nthreads):
+        e = 0.0
+        vxx = 0.0
+        vyy = 0.0
+        vzz = 0.0
+        vyz = 0.0
+        vxz = 0.0
+        vxy = 0.0
+        for i in range(bounds[t], bounds[t + 1]):
+            sx = s[i, 0]
+            sy = s[i, 1]
+            sz = s[i, 2]
+            bx = 0.0
+            by = 0.0
+            bz = 0.0
+            fx = 0.0
+            fy = 0.0
+            fz = 0.0
+            ei = 0.0
+            for k in range(row[i], row[i + 1]):
+                j = nbr[k]
+                Jk = J[k]
+                tx = s[j, 0]
+                ty = s[j, 1]
+                tz = s[j, 2]
+                bx += Jk * tx
+                by += Jk * ty
+                bz += Jk * tz
+                if need_dot:
+                    w = sx * tx + sy * ty + sz * tz - c
+                    fx -= w * G[k, 0]
+                    fy -= w * G[k, 1]
+                    fz -= w * G[k, 2]
+                    ei -= 0.5 * Jk * w
+                    if want_virial:
+                        h = -0.5 * w
+                        vxx += h * G[k, 0] * D[k, 0]
+                        vyy += h * G[k, 1] * D[k, 1]
+                        vzz += h * G[k, 2] * D[k, 2]
+                        vyz += h * G[k, 1] * D[k, 2]
+                        vxz += h * G[k, 0] * D[k, 2]
+                        vxy += h * G[k, 0] * D[k, 1]
+            if want_b:
+                B[i, 0] += bx
+                B[i, 1] += by
+                B[i, 2] += bz
+            if want_f:
+                F[i, 0] += fx
+                F[i, 1] += fy
+                F[i, 2] += fz
+            if want_energies:
+                energies[i] += ei
+            if want_energy:
+                e += ei
+        acc[t, 0] = e
+        acc[t, 1] = vxx
+        acc[t, 2] = vyy
+        acc[t, 3] = vzz
+        acc[t, 4] = vyz
+        acc[t, 5] = vxz
+        acc[t, 6] = vxy
+    out = acc.sum(axis=0)
+    return out[0], out[1], out[2], out[3], out[4], out[5], out[6]
 
 
 @threaded(reduce_threads=lambda: reduce_threads_serial)

@@ -1,0 +1,72 @@
+"""Thread counts: results independent of them, the adaptive choice, the knob."""
+
+import numba as nb
+import numpy as np
+import pytest
+from ase import units
+
+from ase_spin import CollectivePRK, SpinLatticeCalculator, SuzukiTrotter, get_spins
+from ase_spin.scenes import fcc_cobalt, fcc_cobalt_terms, field_anisotropy_terms
+from ase_spin.terms import DMI
+from ase_spin.threads import AdaptiveThreads, chunks
+
+needs_threads = pytest.mark.skipif(chunks() < 2, reason="numba has one thread here")
+
+
+@needs_threads
+@pytest.mark.parametrize("cls", [CollectivePRK, SuzukiTrotter])
+def test_trajectory_is_bitwise_the_same_with_one_thread_or_all(cls):
+    """Work is cut into fixed chunks whatever number of threads runs them: the
+    adaptive choice cannot change a bit. N = 4000 (threaded kernels), every
+    kind of term (fused exchange, single-site, pair skeleton)."""
+    runs = []
+    for n in (1, chunks()):
+        atoms = fcc_cobalt(10)
+        atoms.calc = SpinLatticeCalculator([*fcc_cobalt_terms(), *field_anisotropy_terms(),
+                                            DMI(2e-3, [0, 0, 1], rc=2.7)])
+        dyn = cls(atoms, 0.2 * units.fs, threads=n)
+        dyn.run(3)
+        runs.append((atoms.positions.copy(), atoms.get_momenta(), get_spins(atoms),
+                     dyn.get_total_energy()))
+    for a, b in zip(*runs):
+        assert np.array_equal(a, b)
+
+
+def test_adaptive_choice_follows_the_faster_setting():
+    """With made-up step times: both settings are timed (first step at each
+    dropped), the faster is kept, the other re-probed, and a slowdown of the
+    current choice switches at once."""
+    control = AdaptiveThreads("auto", probe=1e9)
+    control.most = 2
+    times = {2: 5.0, 1: 1.0}
+    chosen, probes = [], []
+    for _ in range(8):
+        n = control._choose()
+        chosen.append(n)
+        probes.append(control._probing)
+        control._record(n, times[n])
+    assert chosen[:4] == [2, 2, 1, 1]      # each measured twice (first dropped)
+    assert chosen[4] == 2 and probes[4]    # the first probe, then none for 1e9 s
+    assert chosen[5:] == [1, 1, 1] and not any(probes[5:])
+    times[1] = 10.0                          # a core got busy: one slow step switches
+    control._record(control._choose(), times[1])
+    assert control._choose() == 2
+
+
+def test_threads_setting_is_checked(monkeypatch):
+    assert AdaptiveThreads(1).setting == 1
+    assert AdaptiveThreads("auto").setting == "auto"
+    monkeypatch.setenv("ASE_SPIN_THREADS", "1")
+    assert AdaptiveThreads().setting == 1
+    for bad, exc in ((0, ValueError), (chunks() + 1, ValueError), ("many", ValueError),
+                     (1.5, TypeError), (True, TypeError)):
+        with pytest.raises(exc, match="threads"):
+            AdaptiveThreads(bad)
+
+
+def test_fixed_thread_count_is_used_and_restored():
+    atoms = fcc_cobalt(2)
+    before = nb.get_num_threads()
+    dyn = CollectivePRK(atoms, 0.2 * units.fs, threads=1)
+    dyn.run(2)
+    assert dyn.threads.choice == 1 and nb.get_num_threads() == before
