@@ -9,6 +9,9 @@ from .md import (HBAR, CollectivePRK, IntegrationError, SpinConvergenceError,
 from .spins import get_moments, get_spins, set_spins
 from .terms import (BetheSlater, BiquadraticExchange, Coupling, Cubic, Exchange, LennardJones, Term,
                     CubicAnisotropy, DMI, UniaxialAnisotropy, Zeeman)
+from .terms import ShellExchange, Tabulated
+from .symmetry import magnetic_symmetry, neighbor_shells
+from .tb2j import read_tb2j
 
 __version__ = "0.1.0"
 
@@ -20,4 +23,5 @@ __all__ = [
     "recover_trajectory", "complete_frames",
     "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic", "Zeeman",
     "UniaxialAnisotropy", "CubicAnisotropy", "DMI", "BiquadraticExchange",
+    "Tabulated", "ShellExchange", "neighbor_shells", "magnetic_symmetry", "read_tb2j",
 ]

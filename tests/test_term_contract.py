@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from ase_spin import (DMI, BetheSlater, BiquadraticExchange, Cubic, Exchange, Hamiltonian, LennardJones,
                       SpinLatticeCalculator, UniaxialAnisotropy, Want, Zeeman, set_spins,
-                      CubicAnisotropy)
+                      CubicAnisotropy, Tabulated)
 
 from conftest import CO_BS, CO_LJ, random_spins, structures
 from test_calculator import fd_forces, fd_magnetic_forces, fd_stress
@@ -45,6 +45,8 @@ TERMS = [
      _isotropic(lambda: Exchange(BetheSlater(*CO_BS), rc=4.0, offset=True))),
     ("exchange-cubic", _isotropic(lambda: Exchange(Cubic(0.3, 4.2)))),
     ("exchange-user", _isotropic(lambda: Exchange(_UserCoupling()))),
+    ("exchange-tabulated", _isotropic(lambda: Exchange(Tabulated(
+        [2.3, 2.6, 3.0, 3.5, 4.0, 4.4], [0.05, 0.03, 0.012, 0.002, -0.001, 0.0])))),
     ("zeeman", lambda R=np.eye(3): Zeeman(R @ [0.3, -1.2, 2.0])),
     ("zeeman-lammps", lambda R=np.eye(3): Zeeman(7.0, R @ [1.0, 1.0, 0.0], mu_B=5.78901e-5)),
     ("uniaxial", lambda R=np.eye(3): UniaxialAnisotropy(0.013, R @ [0.2, 0.5, -1.0])),

@@ -7,9 +7,10 @@ from .dmi import DMI
 from .base import SingleSiteTerm, SpinOperator, SpinTerm, Term
 from .exchange import BetheSlater, Coupling, Cubic, Exchange, ExchangeOperator
 from .lennard_jones import LennardJones
+from .tabulated import ShellExchange, Tabulated
 from .zeeman import Zeeman
 
 __all__ = ["Term", "SpinTerm", "SingleSiteTerm", "SpinOperator", "LennardJones", "Exchange",
            "Coupling", "BetheSlater", "Cubic", "ExchangeOperator", "Zeeman",
            "UniaxialAnisotropy", "CubicAnisotropy", "DMI",
-           "BiquadraticExchange"]
+           "BiquadraticExchange", "Tabulated", "ShellExchange"]

@@ -1,0 +1,218 @@
+"""Exchange constants from TB2J (DFT, magnetic force theorem) in ase_spin's convention."""
+
+from __future__ import annotations
+
+import os
+import re
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from ase import Atoms
+
+__all__ = ["read_tb2j", "TB2JExchange"]
+
+#: TB2J's J_iso are in meV over ordered pairs; ase_spin's J in eV over unordered ones.
+MEV = 1e-3
+
+_PAIR = re.compile(
+    r"^\s*(?:\d+\(\s*)?([A-Za-z]+\d+)\s*\)?\s+(?:\d+\(\s*)?([A-Za-z]+\d+)\s*\)?\s+"
+    r"\(\s*(-?\d+)\s*,\s*(-?\d+)\s*,\s*(-?\d+)\s*\)\s+(\S+)\s+"
+    r"\(\s*(\S+?)\s*,\s*(\S+?)\s*,\s*(\S+?)\s*\)\s+(\S+)\s*$")
+
+
+@dataclass
+class TB2JExchange:
+    """Isotropic exchange read from TB2J, in ase_spin's convention.
+
+    ``atoms``: the cell and atoms of the calculation (``initial_magmoms`` from
+    TB2J's Wannier moments). Pairs (one row per unordered pair, each once):
+    atoms ``i``, ``j`` (indices in ``atoms``), lattice image ``R`` (j is in
+    the cell shifted by R·cell), ``distance`` (Å, from the positions) and
+    ``J`` (eV): E = −Σ_{i<j} J_ij s_i·s_j, J > 0 ferromagnetic.
+    """
+
+    atoms: Atoms
+    i: np.ndarray
+    j: np.ndarray
+    R: np.ndarray
+    distance: np.ndarray
+    J: np.ndarray
+
+    def __len__(self):
+        return len(self.J)
+
+    def shells(self, tol=1e-3):
+        """Pairs grouped by species pair and distance (within ``tol`` Å):
+        {(sym_a, sym_b): [(distance, J mean, J min, J max, pairs), ...]}, J in eV.
+        J min ≠ J max flags pairs at one distance that are not equivalent
+        (different J), which one constant per shell cannot represent."""
+        symbols = self.atoms.get_chemical_symbols()
+        species = [tuple(sorted((symbols[a], symbols[b]))) for a, b in zip(self.i, self.j)]
+        out = {}
+        for key in sorted(set(species)):
+            sel = np.array([s == key for s in species])
+            d, J = self.distance[sel], self.J[sel]
+            order = np.argsort(d)
+            d, J = d[order], J[order]
+            starts = np.concatenate([[0], np.nonzero(np.diff(d) > tol)[0] + 1, [len(d)]])
+            out[key] = [(float(d[a:b].mean()), float(J[a:b].mean()), float(J[a:b].min()),
+                         float(J[a:b].max()), int(b - a))
+                        for a, b in zip(starts[:-1], starts[1:])]
+        return out
+
+    def exchange(self, rmax=None, tol=0.1, spread=1e-4, offset=False):
+        """A :class:`~ase_spin.ShellExchange` with TB2J's constants per shell
+        (species pair and distance), up to ``rmax`` Å (default: all). A shell
+        whose pairs' J differ by more than ``spread`` eV gets their mean, with
+        a warning naming it."""
+        from .terms.tabulated import ShellExchange
+
+        table = {}
+        for key, shells in self.shells().items():
+            rows = []
+            for d, J, lo, hi, n in shells:
+                if rmax is not None and d > rmax:
+                    continue
+                if hi - lo > spread:
+                    warnings.warn(
+                        f"TB2J: the {n} {key[0]}-{key[1]} pairs at {d:.4f} Å have J from "
+                        f"{lo:.6g} to {hi:.6g} eV (not equivalent): ShellExchange uses their "
+                        f"mean {J:.6g} eV", stacklevel=2)
+                rows.append((d, J))
+            table[key] = rows or None
+        return ShellExchange(table, tol=tol, offset=offset)
+
+
+def _find(lines, header, path):
+    for k, line in enumerate(lines):
+        if line.strip().startswith(header):
+            return k
+    raise ValueError(f"{path}: no '{header}' section: not a TB2J exchange.out file")
+
+
+def read_tb2j(path):
+    """Read TB2J's ``exchange.out`` (the format TB2J 0.9 writes:
+    ``TB2J/io_exchange/io_txt.py``; pair lines ``Fe1 Fe2 (R1, R2, R3) J_iso
+    (x, y, z) distance``, also the older ``0(Fe1 )`` labels) into a
+    :class:`TB2JExchange`. ``path``: the file, or a directory holding it (or
+    ``TB2J_results/exchange.out``).
+
+    Conversion: TB2J writes E = −Σ_{i≠j} J^TB2J_ij S_i·S_j with unit vectors S
+    and every ordered pair (i, j) and (j, i) in the sum, J in meV. ase_spin
+    counts each pair once, E = −Σ_{i<j} J_ij s_i·s_j, in eV, so
+
+        J_ij = 2 × 10⁻³ × J^TB2J_ij.
+
+    The two directions of a pair (i, j, R) and (j, i, −R) become one row (their
+    mean, with a warning when they differ by more than TB2J's printed
+    precision); a pair listed in one direction only is kept. Each pair's
+    vector is checked against the positions (the file's atoms section).
+    """
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        for name in ("exchange.out", os.path.join("TB2J_results", "exchange.out")):
+            if os.path.isfile(os.path.join(path, name)):
+                path = os.path.join(path, name)
+                break
+        else:
+            raise FileNotFoundError(f"no exchange.out in {path}")
+    with open(path) as f:
+        lines = f.read().splitlines()
+
+    k = _find(lines, "Cell (Angstrom)", path)
+    try:
+        cell = np.array([[float(x) for x in lines[k + n].split()] for n in (1, 2, 3)])
+    except (ValueError, IndexError):
+        raise ValueError(f"{path}: line {k + 2}: the cell must be three rows of three numbers")
+    if cell.shape != (3, 3):
+        raise ValueError(f"{path}: line {k + 2}: the cell must be three rows of three numbers")
+
+    k = _find(lines, "Atoms:", path)
+    labels, positions, moments = [], [], []
+    for n in range(k + 1, len(lines)):
+        words = lines[n].split()
+        if lines[n].startswith("=") or lines[n].startswith("-"):
+            break
+        if not words or not re.fullmatch(r"[A-Z][a-z]?\d+", words[0]):
+            continue  # the note, the column titles, "Total" lines
+        try:
+            values = [float(x) for x in words[1:]]
+        except ValueError:
+            raise ValueError(f"{path}: line {n + 1}: expected a label and numbers: {lines[n]!r}")
+        if len(values) not in (5, 7):
+            raise ValueError(f"{path}: line {n + 1}: expected x y z charge and a moment "
+                             f"(1 or 3 numbers): {lines[n]!r}")
+        labels.append(words[0])
+        positions.append(values[:3])
+        moments.append(values[4] if len(values) == 5 else values[4:7])
+    if not labels:
+        raise ValueError(f"{path}: no atoms in the Atoms section")
+    symbols = [re.match(r"[A-Z][a-z]?", s).group() for s in labels]
+    atoms = Atoms(symbols, positions=positions, cell=cell, pbc=True)
+    atoms.set_initial_magnetic_moments(np.array(moments))
+    index = {s: n for n, s in enumerate(labels)}
+
+    k = _find(lines, "Exchange:", path)
+    rows = []
+    for n in range(k + 1, len(lines)):
+        if lines[n].startswith("="):
+            break
+        m = _PAIR.match(lines[n])
+        if not m:
+            continue
+        a, b = m.group(1), m.group(2)
+        for lab in (a, b):
+            if lab not in index:
+                raise ValueError(f"{path}: line {n + 1}: atom {lab} is not in the Atoms section")
+        R = [int(m.group(g)) for g in (3, 4, 5)]
+        try:
+            J, vx, vy, vz, dist = (float(m.group(g)) for g in (6, 7, 8, 9, 10))
+        except ValueError:
+            raise ValueError(f"{path}: line {n + 1}: unreadable numbers in {lines[n]!r}")
+        rows.append((index[a], index[b], *R, J, vx, vy, vz, dist, n + 1))
+    if not rows:
+        raise ValueError(f"{path}: no exchange pairs in the Exchange section")
+    data = np.array(rows, dtype=float)
+    i, j = data[:, 0].astype(int), data[:, 1].astype(int)
+    R = data[:, 2:5].astype(int)
+    J_tb2j, vec, line_no = data[:, 5], data[:, 6:9], data[:, 10].astype(int)
+
+    pos = atoms.positions
+    d = pos[j] + R @ cell - pos[i]
+    bad = np.linalg.norm(d - vec, axis=1) > 2e-3  # the file prints 3 decimals
+    if bad.any():
+        q = int(np.argmax(bad))
+        raise ValueError(f"{path}: line {line_no[q]}: the pair's vector {vec[q].tolist()} is not "
+                         f"r_j + R·cell − r_i = {np.round(d[q], 4).tolist()} from the atoms section")
+    keep = ~((i == j) & (R == 0).all(axis=1))  # TB2J may list an on-site entry
+
+    # one row per unordered pair: (a, b, S) with a < b, or a == b and S > 0
+    swap = (j < i) | ((j == i) & _lex_negative(R))
+    a = np.where(swap, j, i)[keep]
+    b = np.where(swap, i, j)[keep]
+    S = np.where(swap[:, None], -R, R)[keep]
+    J_tb2j, line_no = J_tb2j[keep], line_no[keep]
+    keys = np.column_stack([a, b, S])
+    uniq, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    total = np.bincount(inv, weights=J_tb2j)
+    lo = np.full(len(uniq), np.inf)
+    hi = np.full(len(uniq), -np.inf)
+    np.minimum.at(lo, inv, J_tb2j)
+    np.maximum.at(hi, inv, J_tb2j)
+    if (hi - lo > 2e-4).any():  # meV: twice TB2J's printed precision
+        q = int(np.argmax(hi - lo))
+        warnings.warn(f"{path}: the two directions of the pair {uniq[q].tolist()} have J "
+                      f"{lo[q]} and {hi[q]} meV; using their mean", stacklevel=2)
+    Jbar = total / counts
+    ia, ib, Su = uniq[:, 0], uniq[:, 1], uniq[:, 2:]
+    dist = np.linalg.norm(pos[ib] + Su @ cell - pos[ia], axis=1)
+    order = np.lexsort((ib, ia, dist))
+    return TB2JExchange(atoms=atoms, i=ia[order], j=ib[order], R=Su[order],
+                        distance=dist[order], J=2.0 * MEV * Jbar[order])
+
+
+def _lex_negative(S):
+    first = np.argmax(S != 0, axis=1)
+    return S[np.arange(len(S)), first] < 0
