@@ -1,5 +1,6 @@
 """ase_spin: coupled spin–lattice dynamics for the Atomic Simulation Environment."""
 
+from . import compilation as _compilation  # noqa: F401 - announces first-use compilation
 from .calculator import SpinLatticeCalculator
 from .hamiltonian import AtomsTooCloseError, Evaluator, Hamiltonian, Want
 from .constants import HBAR_LAMMPS, MU_B, MU_B_LAMMPS
@@ -7,6 +8,7 @@ from .io import complete_frames, recover_trajectory
 from .md import (HBAR, CollectivePRK, IntegrationError, SpinConvergenceError,
                  SpinLatticeDynamics, SpinMDLogger, SuzukiTrotter, UnstableStepError)
 from .spins import get_moments, get_spins, set_spins
+from .viewing import plot_spins, spin_colors, write_ovito_xyz
 from .terms import (BetheSlater, BiquadraticExchange, Coupling, Cubic, Exchange, LennardJones, Term,
                     CubicAnisotropy, DMI, UniaxialAnisotropy, Zeeman)
 from .terms import ShellExchange, Tabulated
@@ -24,4 +26,5 @@ __all__ = [
     "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic", "Zeeman",
     "UniaxialAnisotropy", "CubicAnisotropy", "DMI", "BiquadraticExchange",
     "Tabulated", "ShellExchange", "neighbor_shells", "magnetic_symmetry", "read_tb2j",
+    "write_ovito_xyz", "spin_colors", "plot_spins",
 ]

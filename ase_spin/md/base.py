@@ -279,6 +279,14 @@ class SpinLatticeDynamics(MolecularDynamics):
             self.call_observers()
             yield self.nsteps == self.max_steps
 
+    def run(self, steps=50, progress=False):
+        """ASE's ``run``; ``progress=True`` (or a dict of tqdm options) shows a
+        progress bar with steps/s and the time left (:mod:`ase_spin.progress`)."""
+        if progress:
+            from ..progress import run_with_progress
+            return run_with_progress(self, steps, progress)
+        return super().run(steps)
+
     def _step(self, count=False):
         st = self._sync()
         before = self._written

@@ -1,0 +1,417 @@
+"""The ``ase-spin`` command line, the progress bar of ``dyn.run`` and the
+first-use compilation notice."""
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from ase import units
+from ase.io import read
+
+import ase_spin
+from ase_spin import cli
+from ase_spin.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+SCENE = """
+[structure]
+build = {{function = "bulk", name = "Co", crystalstructure = "fcc", a = 3.54, cubic = true}}
+repeat = [2, 2, 2]
+rattle = 0.03
+seed = 4
+
+[spins]
+magnitude = 1.72
+direction = [0, 0, 1]
+cone = 30
+seed = 5
+
+[velocities]
+temperature = 100
+seed = 6
+
+[[terms]]
+type = "LennardJones"
+epsilon = 0.4
+sigma = 2.2742
+rc = 4.7
+cutoff = "shift"
+
+[[terms]]
+type = "Exchange"
+coupling = {{type = "BetheSlater", J1 = 0.0446928, J2 = 0.003496, J3 = 1.4885}}
+rc = 4.0
+
+[[terms]]
+type = "Zeeman"
+field = [0, 0, 20]
+
+[calculator]
+skin = 0.4
+
+[integrator]
+type = "{integrator}"
+timestep = {timestep}
+steps = {steps}
+{extra}
+
+[output]
+trajectory = "md.traj"
+log = "md.log"
+xyz = "spins.xyz"
+interval = {interval}
+"""
+
+
+def write_input(folder, integrator="CollectivePRK", timestep=0.5, steps=12, interval=4,
+                extra="order = 2", text=None):
+    path = Path(folder) / "scene.toml"
+    path.write_text(text if text is not None else SCENE.format(
+        integrator=integrator, timestep=timestep, steps=steps, interval=interval,
+        extra=extra))
+    return path
+
+
+def run_cli(*args):
+    return main([str(a) for a in args])
+
+
+@pytest.mark.parametrize("integrator, extra", [("CollectivePRK", "order = 4"),
+                                               ("SuzukiTrotter", 'rotation = "exact"')])
+def test_run_writes_outputs_and_follows_the_same_scene_in_a_script(tmp_path, integrator,
+                                                                    extra, capsys):
+    """The command builds the scene the file describes: the same integrator,
+    fed the trajectory's first frame in a script, gives its last frame bit for
+    bit (timestep in fs, integrator keywords, terms with their parameters)."""
+    path = write_input(tmp_path, integrator=integrator, extra=extra)
+    assert run_cli("run", path, "--no-progress") == 0
+    out = capsys.readouterr().out
+    assert "32 atoms" in out and integrator in out and "12 steps" in out
+    frames = read(tmp_path / "md.traj", ":")
+    assert len(frames) == 12 // 4 + 1
+    lines = (tmp_path / "md.log").read_text().splitlines()
+    assert lines[0].split()[0] == "Time[ps]" and len(lines) == 1 + len(frames)
+    times = [float(line.split()[0]) for line in lines[1:]]
+    np.testing.assert_allclose(times, np.arange(len(frames)) * 4 * 0.5e-3, atol=5e-5)
+    xyz = read(tmp_path / "spins.xyz", ":")
+    assert len(xyz) == len(frames)
+    np.testing.assert_allclose(xyz[-1].arrays["dipoles"], ase_spin.get_spins(frames[-1]),
+                               atol=1e-7)
+
+    atoms = frames[0].copy()
+    atoms.set_momenta(frames[0].get_momenta())
+    atoms.calc = ase_spin.SpinLatticeCalculator([
+        ase_spin.LennardJones(epsilon=0.4, sigma=2.2742, rc=4.7, cutoff="shift"),
+        ase_spin.Exchange(ase_spin.BetheSlater(J1=0.0446928, J2=0.003496, J3=1.4885), rc=4.0),
+        ase_spin.Zeeman([0, 0, 20])], skin=0.4)
+    cls = getattr(ase_spin, integrator)
+    kwargs = {"order": 4} if integrator == "CollectivePRK" else {"rotation": "exact"}
+    dyn = cls(atoms, 0.5 * units.fs, **kwargs)
+    dyn.run(12)
+    np.testing.assert_array_equal(atoms.positions, frames[-1].positions)
+    np.testing.assert_array_equal(atoms.arrays["initial_magmoms"],
+                                  frames[-1].arrays["initial_magmoms"])
+
+
+def test_spins_and_velocities_follow_the_input(tmp_path):
+    text = SCENE.format(integrator="CollectivePRK", timestep=0.5, steps=0, interval=1,
+                        extra="").replace("direction = [0, 0, 1]", "direction = [1, 1, 0]")
+    spec = cli.load_input(write_input(tmp_path, text=text))
+    atoms = cli.build_scene(spec)
+    spins = ase_spin.get_spins(atoms)
+    mu = np.linalg.norm(atoms.arrays["initial_magmoms"], axis=1)
+    np.testing.assert_allclose(mu, 1.72, rtol=1e-14)
+    angle = np.degrees(np.arccos(np.clip(spins @ (np.array([1, 1, 0]) / 2**0.5), -1, 1)))
+    assert angle.max() <= 30.0 + 1e-9 and angle.max() > 15.0   # spread over the cone
+    assert np.abs(atoms.get_momenta().sum(axis=0)).max() < 1e-12  # no drift
+    assert 20.0 < atoms.get_temperature() < 300.0
+
+
+def test_per_species_magnitudes_and_random_directions(tmp_path):
+    text = textwrap.dedent("""
+        [structure]
+        build = {function = "bulk", name = "NaCl", crystalstructure = "rocksalt", a = 5.6}
+        repeat = [2, 2, 2]
+        [spins]
+        magnitude = {Na = 1.5, Cl = 0}
+        direction = "random"
+        [[terms]]
+        type = "UniaxialAnisotropy"
+        K = 0.01
+        axis = [0, 0, 1]
+        [integrator]
+        timestep = 1
+        steps = 0
+        """)
+    atoms = cli.build_scene(cli.load_input(write_input(tmp_path, text=text)))
+    mu = np.linalg.norm(atoms.arrays["initial_magmoms"], axis=1)
+    na = np.array(atoms.get_chemical_symbols()) == "Na"
+    np.testing.assert_allclose(mu[na], 1.5, rtol=1e-14)
+    assert not mu[~na].any()
+    spins = ase_spin.get_spins(atoms)[na]
+    assert np.linalg.norm(spins.mean(axis=0)) < 0.9  # not all one way
+
+
+def test_structure_from_a_file_relative_to_the_input(tmp_path, monkeypatch):
+    from ase.build import bulk
+    from ase.io import write
+
+    data = tmp_path / "data"
+    data.mkdir()
+    atoms = bulk("Fe", "bcc", a=2.87, cubic=True).repeat(2)
+    write(data / "fe.xyz", atoms, format="extxyz")
+    text = textwrap.dedent("""
+        [structure]
+        file = "fe.xyz"
+        [spins]
+        magnitude = 2.2
+        [[terms]]
+        type = "Exchange"
+        coupling = {type = "Cubic", J0 = 0.02, rc = 3.5}
+        [integrator]
+        type = "SuzukiTrotter"
+        timestep = 0.2
+        steps = 3
+        [output]
+        interval = 1
+        """)
+    path = write_input(data, text=text)
+    monkeypatch.chdir(tmp_path)  # run from elsewhere: paths are the input's folder's
+    assert run_cli("run", "data/scene.toml", "--no-progress") == 0
+    assert os.getcwd() == str(tmp_path)
+    frames = read(data / "scene.traj", ":")  # default names: the input's stem
+    assert len(frames) == 4 and (data / "scene.log").is_file()
+    np.testing.assert_allclose(frames[0].positions, atoms.positions)
+    assert path.is_file()
+
+
+def test_a_term_exported_by_the_package_is_usable_by_name(tmp_path, monkeypatch):
+    """Terms are looked up among ase_spin's exports: a new one needs no CLI change."""
+    made = []
+
+    class DoubledZeeman(ase_spin.Zeeman):
+        def __init__(self, field, **kwargs):
+            made.append(field)
+            super().__init__([2 * f for f in field], **kwargs)
+
+    monkeypatch.setattr(ase_spin, "DoubledZeeman", DoubledZeeman, raising=False)
+    text = SCENE.format(integrator="CollectivePRK", timestep=0.5, steps=0, interval=1,
+                        extra="").replace('type = "Zeeman"', 'type = "DoubledZeeman"')
+    atoms = cli.build_scene(cli.load_input(write_input(tmp_path, text=text)))
+    terms = atoms.calc.hamiltonian.terms
+    assert made == [[0, 0, 20]] and isinstance(terms[-1], DoubledZeeman)
+    np.testing.assert_array_equal(terms[-1].H, [0, 0, 40])
+
+
+@pytest.mark.parametrize("change, message", [
+    (('type = "Zeeman"', 'type = "Zeman"'), "unknown type 'Zeman'; choose one of"),
+    (("field = [0, 0, 20]", "field = [0, 0, 20]\nstrength = 3"), "#3 (Zeeman)"),
+    (("cutoff = \"shift\"", "cutoff = \"sharp\""), "#1 (LennardJones)"),
+    (("[calculator]", "[calculater]"), "unknown table(s) calculater"),
+    (("steps = 12", "steps = 12.5"), "steps must be an integer"),
+    (("timestep = 0.5", "timestep = -0.5"), "timestep = ... (fs, > 0)"),
+    (("type = \"CollectivePRK\"", "type = \"LennardJones\""), "unknown type 'LennardJones'"),
+    (("[spins]\nmagnitude = 1.72", "[spins]\nmagnitude = {Fe = 2.2}"),
+     "no value for Co"),
+    (("repeat = [2, 2, 2]", "repeat = [2, 2, 2]\ncolour = 1"), "[structure] has unknown"),
+    (("a = 3.54, cubic", "a = 3.54, cubix"), "build = bulk(...)"),
+])
+def test_bad_input_is_refused_with_a_message_naming_it(tmp_path, capsys, change, message):
+    text = SCENE.format(integrator="CollectivePRK", timestep=0.5, steps=12, interval=4,
+                        extra="")
+    assert change[0] in text
+    path = write_input(tmp_path, text=text.replace(change[0], change[1], 1))
+    assert run_cli("run", path, "--no-progress") == 2
+    err = capsys.readouterr().err
+    assert err.startswith("ase-spin: error:") and message in err, err
+    assert not (tmp_path / "md.traj").exists() and not (tmp_path / "md.log").exists()
+
+
+def test_spin_terms_without_moments_are_refused(tmp_path, capsys):
+    text = SCENE.format(integrator="CollectivePRK", timestep=0.5, steps=1, interval=1,
+                        extra="")
+    start = text.index("[spins]")
+    text = text[:start] + text[text.index("[velocities]"):]
+    assert run_cli("run", write_input(tmp_path, text=text), "--no-progress") == 2
+    assert "no magnetic moments" in capsys.readouterr().err
+
+
+def test_existing_outputs_are_kept_unless_overwrite(tmp_path, capsys):
+    path = write_input(tmp_path, steps=2, interval=1)
+    (tmp_path / "md.log").write_text("precious\n")
+    assert run_cli("run", path, "--no-progress") == 2
+    assert "md.log exist" in capsys.readouterr().err
+    assert (tmp_path / "md.log").read_text() == "precious\n"
+    assert run_cli("run", path, "--no-progress", "--overwrite") == 0
+    assert len(read(tmp_path / "md.traj", ":")) == 3
+    assert (tmp_path / "md.log").read_text().startswith("Time[ps]")
+    assert run_cli("run", path, "--no-progress", "--steps", "4", "--overwrite") == 0
+    assert len(read(tmp_path / "md.traj", ":")) == 5
+
+
+def test_progress_bar_on_stderr(tmp_path, capsys):
+    path = write_input(tmp_path, steps=6, interval=3)
+    assert run_cli("run", path) == 0
+    err = capsys.readouterr().err
+    assert "CollectivePRK" in err and "6/6" in err and "step/s" in err
+
+
+def test_dyn_run_progress_changes_nothing_but_the_display(capsys):
+    """dyn.run(progress=True) takes the same steps to the same state, adds no
+    observer (no energies on unlogged steps) and leaves a finished bar."""
+    from ase.build import bulk
+
+    def scene():
+        atoms = bulk("Co", "fcc", a=3.54, cubic=True).repeat(2)
+        atoms.rattle(0.02, seed=1)
+        ase_spin.set_spins(atoms, np.random.default_rng(2).normal(size=(32, 3)), 1.72)
+        atoms.calc = ase_spin.SpinLatticeCalculator([
+            ase_spin.LennardJones(0.4, 2.2742, 4.7, cutoff="shift"),
+            ase_spin.Exchange(ase_spin.BetheSlater(0.0446928, 0.003496, 1.4885), rc=4.0)])
+        return atoms
+
+    a, b = scene(), scene()
+    da = ase_spin.CollectivePRK(a, 0.5 * units.fs)
+    db = ase_spin.CollectivePRK(b, 0.5 * units.fs)
+    assert da.run(7) is True
+    observers = list(db.observers)
+    assert db.run(7, progress={"desc": "spins"}) is True
+    assert db.observers == observers and db.nsteps == da.nsteps == 7
+    np.testing.assert_array_equal(a.positions, b.positions)
+    np.testing.assert_array_equal(a.arrays["initial_magmoms"], b.arrays["initial_magmoms"])
+    err = capsys.readouterr().err
+    assert "spins" in err and "7/7" in err
+    with pytest.raises(TypeError, match="progress must be"):
+        db.run(1, progress="yes")
+
+
+def test_plot_makes_a_png_of_the_log(tmp_path, capsys):
+    pytest.importorskip("matplotlib")
+    from matplotlib.image import imread
+
+    path = write_input(tmp_path, steps=8, interval=2)
+    assert run_cli("run", path, "--no-progress") == 0
+    # a second run appended to the same log: its header is skipped
+    log = tmp_path / "md.log"
+    text = log.read_text()
+    log.write_text(text + text)
+    columns = cli.read_log(log)
+    assert len(columns["Time[ps]"]) == 10 and "|M|" in columns and "Ts[K]" in columns
+    assert run_cli("plot", log, "-o", tmp_path / "out.png") == 0
+    assert "out.png" in capsys.readouterr().out
+    image = imread(tmp_path / "out.png")
+    assert image.shape[0] > 400 and image.shape[1] > 400
+    assert image[..., :3].std() > 0.05  # drawn, not blank
+    assert run_cli("plot", log) == 0 and (tmp_path / "md.png").is_file()
+
+
+def test_plot_errors(tmp_path, capsys, monkeypatch):
+    assert run_cli("plot", tmp_path / "missing.log") == 2
+    assert "not found" in capsys.readouterr().err
+    (tmp_path / "empty.log").write_text("Time[ps] Etot[eV]\n")
+    assert run_cli("plot", tmp_path / "empty.log") == 2
+    assert "no log lines" in capsys.readouterr().err
+    monkeypatch.setitem(sys.modules, "matplotlib.figure", None)
+    (tmp_path / "a.log").write_text("Time[ps] Etot[eV]\n0.0 1.0\n")
+    assert run_cli("plot", tmp_path / "a.log") == 2
+    assert "needs matplotlib" in capsys.readouterr().err
+
+
+def test_console_script_is_declared_and_the_module_runs(tmp_path):
+    tomllib = cli._toml()
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    module, function = project["scripts"]["ase-spin"].split(":")
+    assert getattr(__import__(module, fromlist=[function]), function) is main
+    assert any(d.startswith("tqdm") for d in project["dependencies"])
+    path = write_input(tmp_path, steps=2, interval=1)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    done = subprocess.run([sys.executable, "-m", "ase_spin.cli", "run", str(path)],
+                          capture_output=True, text=True, env=env, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert "2/2" in done.stderr and "done: 2 steps" in done.stdout
+    bad = subprocess.run([sys.executable, "-m", "ase_spin.cli", "run", str(path)],
+                         capture_output=True, text=True, env=env, timeout=600)
+    assert bad.returncode == 2 and "exist" in bad.stderr
+
+
+NOTICE_SCRIPT = """
+import numba, numpy as np
+
+@numba.njit(cache=True)
+def not_ours(x):
+    return x + 1.0
+
+import ase_spin
+not_ours(1.0)             # a cached kernel of someone else: no notice
+import sys
+print("-- ours from here --", file=sys.stderr, flush=True)
+from ase_spin.md import kernels
+a = np.zeros((3, 3))
+kernels.same(a, a.copy())  # one of ours, compiled on first use
+kernels.same(a, a.copy())
+print("ok")
+"""
+
+
+def test_first_use_compilation_is_announced_once_then_cached(tmp_path):
+    """With an empty numba cache the first compilation of one of this package's
+    kernels prints one line on stderr; the next process finds it cached and
+    prints nothing."""
+    script = tmp_path / "notice.py"
+    script.write_text(NOTICE_SCRIPT)
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    env.pop("ASE_SPIN_QUIET_COMPILE", None)
+    runs = [subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                           env=env, timeout=600) for _ in range(2)]
+    for r in runs:
+        assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+    assert runs[0].stderr.count("compiling numba kernels on first use") == 1, runs[0].stderr
+    assert "compiling" in runs[0].stderr.split("-- ours from here --")[1]
+    assert str(tmp_path / "cache") in runs[0].stderr
+    assert "compiling" not in runs[1].stderr, runs[1].stderr
+    assert any(p.suffix == ".nbi" for p in (tmp_path / "cache").rglob("*"))
+
+
+def test_a_bad_integrator_keyword_leaves_existing_outputs(tmp_path, capsys):
+    path = write_input(tmp_path, steps=2, interval=1, extra="ordr = 2")
+    (tmp_path / "md.log").write_text("precious\n")
+    assert run_cli("run", path, "--no-progress", "--overwrite") == 2
+    assert "[integrator] (CollectivePRK)" in capsys.readouterr().err
+    assert (tmp_path / "md.log").read_text() == "precious\n"
+
+
+def test_collinear_moments_from_a_file_need_a_direction(tmp_path, capsys, monkeypatch):
+    from ase.build import bulk
+    from ase.io import write
+
+    atoms = bulk("Fe", "bcc", a=2.87, cubic=True).repeat(2)  # initial_magmoms (N,) = 2.3
+    write(tmp_path / "fe.xyz", atoms, format="extxyz")
+    text = textwrap.dedent("""
+        [structure]
+        file = "fe.xyz"
+        [[terms]]
+        type = "Exchange"
+        coupling = {type = "Cubic", J0 = 0.02, rc = 3.5}
+        [integrator]
+        timestep = 0.2
+        steps = 1
+        """)
+    assert run_cli("run", write_input(tmp_path, text=text), "--no-progress") == 2
+    assert "collinear moments" in capsys.readouterr().err
+    monkeypatch.chdir(tmp_path)  # build_scene reads paths from the current folder
+    atoms = cli.build_scene(cli.load_input(write_input(
+        tmp_path, text=text.replace("[[terms]]", "[spins]\ndirection = [1, 0, 0]\n[[terms]]"))))
+    np.testing.assert_allclose(atoms.arrays["initial_magmoms"],
+                               np.tile([2.3, 0, 0], (len(atoms), 1)), rtol=1e-14)
+
+
+def test_an_unstable_run_stops_with_a_message(tmp_path, capsys):
+    path = write_input(tmp_path, timestep=40.0, steps=50, interval=10)
+    assert run_cli("run", path, "--no-progress") == 1
+    err = capsys.readouterr().err
+    assert err.startswith("ase-spin: the run stopped:") and "fs" in err
