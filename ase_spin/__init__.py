@@ -6,7 +6,8 @@ from .hamiltonian import AtomsTooCloseError, Evaluator, Hamiltonian, Want
 from .constants import HBAR_LAMMPS, MU_B, MU_B_LAMMPS
 from .io import complete_frames, recover_trajectory
 from .md import (HBAR, CollectivePRK, IntegrationError, SpinConvergenceError,
-                 SpinLatticeDynamics, SpinMDLogger, SuzukiTrotter, UnstableStepError)
+                 SpinLatticeDynamics, SpinMDLogger, SuzukiTrotter, UnstableStepError,
+                 Langevin, relax_spins)
 from .spins import get_moments, get_spins, set_spins
 from .viewing import plot_spins, spin_colors, write_ovito_xyz
 from .terms import (BetheSlater, BiquadraticExchange, Coupling, Cubic, Exchange, LennardJones, Term,
@@ -21,7 +22,7 @@ __all__ = [
     "SpinLatticeCalculator", "Hamiltonian", "Evaluator", "Want", "AtomsTooCloseError",
     "set_spins", "get_spins", "get_moments",
     "CollectivePRK", "SuzukiTrotter", "SpinLatticeDynamics", "IntegrationError",
-    "SpinConvergenceError", "UnstableStepError", "SpinMDLogger", "HBAR", "HBAR_LAMMPS", "MU_B", "MU_B_LAMMPS",
+    "SpinConvergenceError", "UnstableStepError", "Langevin", "relax_spins", "SpinMDLogger", "HBAR", "HBAR_LAMMPS", "MU_B", "MU_B_LAMMPS",
     "recover_trajectory", "complete_frames",
     "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic", "Zeeman",
     "UniaxialAnisotropy", "CubicAnisotropy", "DMI", "BiquadraticExchange",

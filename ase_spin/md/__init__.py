@@ -4,7 +4,8 @@ from .base import (HBAR, IntegrationError, SpinConvergenceError, SpinLatticeDyna
                    UnstableStepError)
 from .collective import CollectivePRK
 from .compositions import COMPOSITIONS
+from .langevin import Langevin, relax_spins
 from .logger import SpinMDLogger
 from .splitting import SuzukiTrotter
 
-__all__ = ["SpinLatticeDynamics", "CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError", "SpinMDLogger", "SuzukiTrotter", "HBAR", "COMPOSITIONS"]
+__all__ = ["SpinLatticeDynamics", "CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError", "SpinMDLogger", "SuzukiTrotter", "HBAR", "COMPOSITIONS", "Langevin", "relax_spins"]

@@ -1,0 +1,480 @@
+"""Langevin: canonical statistics of spins and lattice, T = 0 relaxation, invariants,
+reproducibility, errors.
+
+Statistical tests use fixed seeds. Each compares a mean with its exact value
+within Z standard errors, the standard error estimated from the run itself:
+across independent spins (non-interacting spins are independent samples, their
+time averages iid) or by batch means over blocks much longer than the
+correlation time. Z = 5 (a false failure once in ~2·10⁶ per comparison);
+each test also checks that its standard error is small enough for the
+comparison to mean something.
+"""
+
+import io
+
+import numpy as np
+import pytest
+from ase import Atoms, units
+from ase.build import bulk
+from ase.md.langevin import Langevin as AseLangevin
+from scipy import integrate
+
+import ase_spin
+from ase_spin import (HBAR, MU_B, Exchange, BetheSlater, Langevin, LennardJones,
+                      SpinLatticeCalculator, UniaxialAnisotropy, Zeeman, relax_spins,
+                      set_spins)
+from ase_spin.scenes import fcc_cobalt
+
+Z = 5.0
+
+
+def gas(mus, seed=0):
+    """Independent spins: atoms 10 Å apart, no pair term; random directions."""
+    n = len(mus)
+    atoms = Atoms(f"H{n}", positions=np.column_stack([np.arange(n) * 10.0, np.zeros(n),
+                                                        np.zeros(n)]),
+                  cell=[10.0 * n, 10.0, 10.0], pbc=False)
+    v = np.random.default_rng(seed).normal(size=(n, 3))
+    set_spins(atoms, v, magnitudes=mus)
+    return atoms
+
+
+def langevin_function(x):
+    return 1.0 / np.tanh(x) - 1.0 / x
+
+
+def spin_time_averages(dyn, steps, *functions):
+    """Per-spin time averages of f(s) for each f, sampled every step."""
+    acc = [0.0 for _ in functions]
+
+    def sample():
+        s = dyn._state.s
+        for k, f in enumerate(functions):
+            acc[k] = acc[k] + f(s)
+
+    dyn.attach(sample, interval=1)
+    dyn.run(steps)
+    dyn.observers.pop()
+    return [a / steps for a in acc]
+
+
+def check_mean(per_sample, exact, what, max_se):
+    """Mean of iid per-sample values against ``exact`` within Z standard errors."""
+    per_sample = np.asarray(per_sample)
+    se = per_sample.std(ddof=1, axis=0) / np.sqrt(per_sample.shape[0])
+    assert np.all(se < max_se), (what, se)
+    assert np.all(np.abs(per_sample.mean(axis=0) - exact) < Z * se), \
+        (what, per_sample.mean(axis=0), exact, se)
+
+
+@pytest.mark.parametrize("gyromagnetic", ["lammps", "moment"])
+def test_single_spin_in_a_field_is_boltzmann(gyromagnetic):
+    """Spins in a Zeeman field (g = 1, x = μ μ_B H/k_B T = 0.5, 2, 5 from three
+    moments in one field): ⟨s·ĥ⟩ = coth x − 1/x, and the distribution of
+    u = s·ĥ is P(u) ∝ exp(x u): the CDF transform F(u) is uniform, tested as
+    the fraction of time in each of 8 bins of F, per spin. 256 independent
+    spins per x; the standard error is the spread of the per-spin averages."""
+    T = 20.0
+    kT = units.kB * T
+    xs = np.array([0.5, 2.0, 5.0])
+    per = 256
+    mus = np.repeat(xs, per)  # x = μ with H = k_B T/μ_B
+    atoms = gas(mus)
+    atoms.calc = SpinLatticeCalculator([Zeeman(kT / MU_B, [0, 0, 1], g=1.0)])
+    rate = 1.0 if gyromagnetic == "lammps" else 2.0 / mus
+    omega = float((rate * mus * kT).max()) / HBAR  # fastest Larmor frequency
+    dyn = Langevin(atoms, 0.1 / omega, T, spin_damping=1.0, friction=0.0,
+                   gyromagnetic=gyromagnetic, lattice="frozen", rng=11)
+    dyn.run(500)
+    x_of = np.repeat(xs, per)[:, None]
+    edges = np.linspace(0.0, 1.0, 9)
+
+    def cdf_bins(s):
+        u = s[:, 2:3]
+        F = np.expm1(x_of * (u + 1.0)) / np.expm1(2.0 * x_of)
+        return (F >= edges[None, :-1]) & (F < edges[None, 1:])
+
+    u_mean, bins = spin_time_averages(dyn, 6000, lambda s: s[:, 2], cdf_bins)
+    for k, x in enumerate(xs):
+        rows = slice(k * per, (k + 1) * per)
+        check_mean(u_mean[rows], langevin_function(x), f"<s.h> at x={x}", 0.01)
+        check_mean(bins[rows], np.full(8, 1 / 8), f"bins at x={x}", 0.01)
+    assert np.abs(np.linalg.norm(dyn._state.s, axis=1) - 1.0).max() < 1e-14
+
+
+def test_uniaxial_anisotropy_against_its_integral():
+    """⟨(s·n)²⟩ = ∫u² e^{K u²/kT} du / ∫e^{K u²/kT} du for an easy axis and an
+    easy plane (K/k_B T = 2 and −1.5); 256 independent spins each."""
+    T = 30.0
+    kT = units.kB * T
+    per = 256
+    ratios = np.array([2.0, -1.5])
+    Ks = np.repeat(ratios * kT, per)
+    atoms = gas(np.ones(2 * per), seed=3)
+    atoms.numbers[per:] = 2  # two species, one K each
+    atoms.calc = SpinLatticeCalculator([UniaxialAnisotropy(
+        {"H": ratios[0] * kT, "He": ratios[1] * kT}, [0.0, 0.6, 0.8])])
+    n = np.array([0.0, 0.6, 0.8])
+    omega = 2.0 * float(np.abs(Ks).max()) / HBAR
+    dyn = Langevin(atoms, 0.1 / omega, T, spin_damping=1.0, friction=0.0,
+                   lattice="frozen", rng=5)
+    dyn.run(500)
+    (c2,) = spin_time_averages(dyn, 6000, lambda s: (s @ n) ** 2)
+    for k, r in enumerate(ratios):
+        num = integrate.quad(lambda u: u * u * np.exp(r * u * u), -1, 1)[0]
+        den = integrate.quad(lambda u: np.exp(r * u * u), -1, 1)[0]
+        check_mean(c2[k * per:(k + 1) * per], num / den, f"<(s.n)^2> K/kT={r}", 0.01)
+
+
+def batch_means(series, blocks=20):
+    """Mean and its standard error from ``blocks`` consecutive block means."""
+    series = np.asarray(series)
+    m = series[: len(series) // blocks * blocks].reshape(blocks, -1, *series.shape[1:])
+    means = m.mean(axis=1)
+    return means.mean(axis=0), means.std(ddof=1, axis=0) / np.sqrt(blocks)
+
+
+def sublattice_temperatures(wrong_variance=False):
+    """Spin temperatures (estimates, standard errors) of the μ = 1 and μ = 7
+    sublattices of the test below; ``wrong_variance``: one noise variance for
+    every spin (the mean rate's) instead of each spin's own."""
+    from ase_spin.md import langevin
+
+    atoms = bulk("Co", "fcc", a=3.54, cubic=True).repeat(2)
+    mus = np.where(np.arange(len(atoms)) % 2 == 0, 1.0, 7.0)
+    set_spins(atoms, [0, 0, 1], magnitudes=mus)
+    atoms.calc = SpinLatticeCalculator([Exchange(BetheSlater(0.0446928, 0.003496, 1.4885),
+                                                 rc=4.0)])
+    T = 500.0
+    dyn = Langevin(atoms, 0.5 * units.fs, T, spin_damping=0.5, friction=0.0,
+                   gyromagnetic="moment", lattice="frozen", rng=2)
+    rotate = langevin.rotate
+    if wrong_variance:
+        langevin.rotate = lambda s, xi, amp, mag: rotate(
+            s, xi, np.full_like(amp, np.sqrt(np.mean(amp**2))), mag)
+    try:
+        dyn.run(300)
+        num, den = [], []
+        small = mus == 1.0
+
+        def sample():
+            s = dyn._state.s
+            B = dyn.get_magnetic_forces()
+            c = (np.cross(s, B) ** 2).sum(axis=1)
+            d = np.einsum("ij,ij->i", s, B)
+            num.append([c[small].sum(), c[~small].sum()])
+            den.append([d[small].sum(), d[~small].sum()])
+
+        dyn.attach(sample, interval=1)
+        dyn.run(5000)
+    finally:
+        langevin.rotate = rotate
+    num, den = np.array(num), np.array(den)
+    blocks = 20  # ratio estimator per block
+    k = len(num) // blocks
+    t_blocks = (num[: k * blocks].reshape(blocks, k, 2).sum(axis=1)
+                / den[: k * blocks].reshape(blocks, k, 2).sum(axis=1)) / (2 * units.kB)
+    return t_blocks.mean(axis=0), t_blocks.std(ddof=1, axis=0) / np.sqrt(blocks)
+
+
+def test_mixed_moments_each_sublattice_at_the_bath_temperature():
+    """Moments 1 and 7 μB on alternating fcc sites, exchange-coupled, frozen
+    lattice, gyromagnetic="moment" (precession rates differ 7×): each
+    sublattice's spin temperature Σ|s×B|²/(2k_B Σ s·B) (the equilibrium
+    identity ⟨|s×B|²⟩ = 2k_B T ⟨s·B⟩, per spin) equals the bath's (500 K), each
+    from its own time series; standard errors by batch means (20 blocks of 250
+    steps, the correlation time ~10 steps). With one variance for all spins
+    (LAMMPS issue 5097's situation) the same check fails: the sublattices
+    come out at different temperatures."""
+    T = 500.0
+    t, se = sublattice_temperatures()
+    assert np.all(se < 0.03 * T), se
+    assert np.all(np.abs(t - T) < Z * se), (t, se)
+    t, se = sublattice_temperatures(wrong_variance=True)
+    assert abs(t[0] - t[1]) > Z * np.hypot(*se), (t, se)
+
+
+def lj_crystal():
+    atoms = bulk("Co", "fcc", a=3.54, cubic=True).repeat(2)
+    atoms.rattle(0.02, seed=1)
+    atoms.calc = SpinLatticeCalculator([LennardJones(epsilon=0.4, sigma=2.2742, rc=4.7,
+                                                     cutoff="shift")])
+    return atoms
+
+
+@pytest.mark.filterwarnings("ignore:The implementation of `fixcm=True`:FutureWarning")
+def test_lattice_temperature_velocities_and_ase_langevin():
+    """No spins: kinetic temperature ⟨2K/(3N k_B)⟩ = T (3N − 3)/(3N) with fixcm;
+    velocities v·√(m/k_B T) have variance (N−1)/N and Gaussian kurtosis 3;
+    ⟨E_pot⟩ agrees with ASE's own Langevin on the same crystal (difference
+    within Z combined standard errors); total momentum stays zero."""
+    T = 300.0
+    fr = 0.1 / units.fs  # correlation time of the kinetic energy ~ 1/(2γ) = 2.5 steps
+    h = 2.0 * units.fs
+    res = {}
+    for name in ("ours", "ase"):
+        atoms = lj_crystal()
+        if name == "ours":
+            dyn = Langevin(atoms, h, T, spin_damping=0.0, friction=fr, rng=3)
+        else:
+            dyn = AseLangevin(atoms, h, temperature_K=T, friction=fr, fixcm=True,
+                              rng=np.random.RandomState(3))
+        dyn.run(100)
+        ek, ep, v = [], [], []
+
+        def sample(dyn=dyn, atoms=atoms):
+            ek.append(atoms.get_kinetic_energy())
+            ep.append(dyn.get_potential_energy() if name == "ours"
+                      else atoms.get_potential_energy())
+            v.append(atoms.get_velocities() * np.sqrt(atoms.get_masses()[:, None]
+                                                      / (units.kB * T)))
+
+        dyn.attach(sample, interval=1)
+        dyn.run(1200)
+        res[name] = (np.array(ek), np.array(ep), np.array(v))
+    ek, ep, v = res["ours"]
+    n = 32
+    tkin, se = batch_means(2 * ek / (3 * n * units.kB))
+    assert se < 0.02 * T
+    assert abs(tkin - T * (3 * n - 3) / (3 * n)) < Z * se, (tkin, se)
+    var, se_var = batch_means((v ** 2).reshape(len(v), -1).mean(axis=1))
+    assert abs(var - (n - 1) / n) < Z * se_var, (var, se_var)
+    k4, se_k4 = batch_means((v ** 4).reshape(len(v), -1).mean(axis=1))
+    assert abs(k4 / var ** 2 - 3.0) < Z * (se_k4 / var ** 2 + 6 * se_var / var), k4
+    mine, se1 = batch_means(res["ours"][1])
+    theirs, se2 = batch_means(res["ase"][1])
+    assert abs(mine - theirs) < Z * np.hypot(se1, se2), (mine, theirs, se1, se2)
+    assert np.hypot(se1, se2) < 0.01 * abs(mine)
+
+
+def analytic_damped_precession(s0, Bvec, rate, lam, t, sigma):
+    """The LLG solution in a fixed field: tan(θ/2) = tan(θ₀/2) e^{−λωt/(1+λ²)},
+    φ = φ₀ − σ ω t/(1+λ²), ω = r|B|/ħ, about B = |B| ẑ."""
+    omega = rate * np.linalg.norm(Bvec) / HBAR
+    th0 = np.arccos(s0[2])
+    ph0 = np.arctan2(s0[1], s0[0])
+    th = 2 * np.arctan(np.tan(th0 / 2) * np.exp(-lam * omega * t / (1 + lam**2)))
+    ph = ph0 - sigma * omega * t / (1 + lam**2)
+    return np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
+
+
+@pytest.mark.parametrize("precession", ["moment", "spin"])
+@pytest.mark.parametrize("gyromagnetic", ["lammps", "moment"])
+def test_zero_temperature_damped_precession_second_order(precession, gyromagnetic):
+    """T = 0, λ = 0.1: one spin (μ = 2) in a field relaxes along the analytic
+    LLG path; error at t against h, h/2, h/4 falls at order 2."""
+    mu = 2.0
+    H = 50.0
+    lam = 0.1
+    s0 = np.array([np.sin(2.5), 0.0, np.cos(2.5)])
+    rate = 1.0 if gyromagnetic == "lammps" else 2.0 / mu
+    Bvec = np.array([0, 0, 2.0 * MU_B * mu * H])
+    omega = rate * np.linalg.norm(Bvec) / HBAR
+    t_end = 20.0 / omega
+    errors = []
+    for n in (100, 200, 400):
+        atoms = gas([mu])
+        set_spins(atoms, s0)
+        atoms.calc = SpinLatticeCalculator([Zeeman(H, [0, 0, 1])])
+        dyn = Langevin(atoms, t_end / n, 0.0, spin_damping=lam, friction=0.0,
+                       precession=precession, gyromagnetic=gyromagnetic, lattice="frozen",
+                       rng=0)
+        dyn.run(n)
+        exact = analytic_damped_precession(s0, Bvec, rate, lam, t_end, dyn.sigma)
+        errors.append(np.abs(ase_spin.get_spins(atoms)[0] - exact).max())
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(np.abs(orders - 2.0) < 0.1), (errors, orders)
+    assert errors[-1] < 1e-2
+
+
+def co_scene(n=2):
+    atoms = fcc_cobalt(n, temperature_K=300.0, cone_deg=40.0)
+    atoms.calc = SpinLatticeCalculator(ase_spin.scenes.fcc_cobalt_terms()
+                                       + [Zeeman(5.0, [0, 0, 1]),
+                                          UniaxialAnisotropy(1e-3, [1, 0, 0])])
+    return atoms
+
+
+def spin_length_run(steps):
+    atoms = co_scene()
+    dyn = Langevin(atoms, 0.5 * units.fs, 600.0, spin_damping=0.3, friction=0.02 / units.fs,
+                   rng=7)
+    worst = 0.0
+    for _ in range(steps // 250):
+        dyn.run(250)
+        worst = max(worst, float(np.abs(np.linalg.norm(dyn._state.s, axis=1) - 1).max()))
+    return worst
+
+
+def test_spin_lengths_stay_at_roundoff():
+    """|s_i| = 1 to 1e-13 over 1 000 stochastic steps (10⁵ with -m slow), fcc Co
+    with exchange, Zeeman and anisotropy, both baths on."""
+    assert spin_length_run(1000) < 1e-13
+
+
+@pytest.mark.slow
+def test_spin_lengths_stay_at_roundoff_long():
+    assert spin_length_run(100_000) < 1e-13
+
+
+def test_reproducible_from_rng_and_restart(tmp_path):
+    """Same seed: identical runs. Restart from a trajectory's last frame with the
+    rng state saved (``dyn.rng.bit_generator.state``) reproduces the
+    uninterrupted run (to the midpoint iteration's tolerance, 1e-10 after 60
+    steps); another seed differs."""
+    from ase.io import read
+
+    def make(seed):
+        atoms = co_scene()
+        return atoms, Langevin(atoms, 0.5 * units.fs, 400.0, spin_damping=0.2,
+                               friction=0.01 / units.fs, rng=seed)
+
+    a1, d1 = make(4)
+    d1.run(120)
+    a2, d2 = make(4)
+    d2.run(120)
+    assert np.array_equal(a1.positions, a2.positions)
+    assert np.array_equal(a1.get_initial_magnetic_moments(), a2.get_initial_magnetic_moments())
+    a3, d3 = make(5)
+    d3.run(120)
+    assert np.abs(a3.get_initial_magnetic_moments() - a1.get_initial_magnetic_moments()).max() > 1e-3
+
+    a4, d4 = make(4)
+    traj = str(tmp_path / "run.traj")
+    d4 = Langevin(a4, 0.5 * units.fs, 400.0, spin_damping=0.2, friction=0.01 / units.fs,
+                  rng=4, trajectory=traj, loginterval=60)
+    d4.run(60)
+    state = d4.rng.bit_generator.state
+    back = read(traj, -1)
+    back.calc = SpinLatticeCalculator(co_scene().calc.hamiltonian.terms)
+    rng = np.random.default_rng()
+    rng.bit_generator.state = state
+    d5 = Langevin(back, 0.5 * units.fs, 400.0, spin_damping=0.2, friction=0.01 / units.fs,
+                  rng=rng)
+    d5.run(60)
+    assert np.abs(back.positions - a1.positions).max() < 1e-10
+    assert np.abs(back.get_initial_magnetic_moments()
+                  - a1.get_initial_magnetic_moments()).max() < 1e-10
+
+
+def test_bath_energy_makes_a_conserved_quantity():
+    """E_tot − E_bath stays within the collective step's own energy error (as an
+    NVE run's spread on the same scene) while E_tot itself wanders by far more;
+    the log carries Ebath and Econs."""
+    atoms = co_scene()
+    log = io.StringIO()
+    dyn = Langevin(atoms, 0.5 * units.fs, 2000.0, spin_damping=0.3,
+                   friction=0.05 / units.fs, rng=1, logfile=log, loginterval=50)
+    cons, tot = [], []
+    dyn.attach(lambda: (cons.append(dyn.get_conserved_energy()),
+                        tot.append(dyn.get_total_energy())), interval=10)
+    dyn.run(1000)
+    cons, tot = np.array(cons), np.array(tot)
+    assert np.ptp(tot) > 50 * np.ptp(cons), (np.ptp(tot), np.ptp(cons))
+    nve = ase_spin.CollectivePRK(co_scene(), 0.5 * units.fs)
+    e = []
+    nve.attach(lambda: e.append(nve.get_total_energy()), interval=10)
+    nve.run(400)
+    assert np.ptp(cons) < 20 * max(np.ptp(e), 1e-6)
+    lines = log.getvalue().splitlines()
+    assert "Ebath[eV]" in lines[0] and len(lines) == 22
+    last = [float(x) for x in lines[-1].split()]
+    assert abs(last[-2] - dyn.get_bath_energy()) < 1e-2
+    assert abs(last[-1] - dyn.get_conserved_energy()) < 1e-2
+
+
+def test_baths_off_is_collective_prk():
+    """spin_damping = 0 and friction = 0: CollectivePRK, step for step."""
+    a, b = co_scene(), co_scene()
+    Langevin(a, 0.5 * units.fs, 300.0, spin_damping=0.0, friction=0.0, rng=1).run(30)
+    ase_spin.CollectivePRK(b, 0.5 * units.fs).run(30)
+    assert np.array_equal(a.positions, b.positions)
+    assert np.array_equal(a.get_initial_magnetic_moments(), b.get_initial_magnetic_moments())
+
+
+def test_two_temperatures():
+    """Spin bath at 50 K, lattice bath at 600 K, parts uncoupled (LJ lattice,
+    Zeeman spins, μ = 2): each part at its own bath — the spin temperature by
+    its estimator (exact in expectation for any T here), the lattice kinetic
+    temperature ×3N/(3N − 3) (fixcm); batch-means standard errors."""
+    atoms = lj_crystal()
+    set_spins(atoms, np.random.default_rng(2).normal(size=(32, 3)), magnitudes=2.0)
+    atoms.calc = SpinLatticeCalculator(list(lj_crystal().calc.hamiltonian.terms)
+                                       + [Zeeman(200.0, [0, 0, 1])])
+    dyn = Langevin(atoms, 2.0 * units.fs, 600.0, spin_temperature_K=50.0, spin_damping=1.0,
+                   friction=0.1 / units.fs, rng=9)
+    dyn.run(100)
+    num, den, tl = [], [], []
+
+    def sample():
+        s = dyn._state.s
+        B = dyn.get_magnetic_forces()
+        num.append((np.cross(s, B) ** 2).sum())
+        den.append(np.einsum("ij,ij->", s, B))
+        tl.append(dyn.get_temperature())
+
+    dyn.attach(sample, interval=1)
+    dyn.run(1200)
+    blocks = 20
+    k = len(num) // blocks
+    ts = (np.reshape(num[: k * blocks], (blocks, k)).sum(axis=1)
+          / np.reshape(den[: k * blocks], (blocks, k)).sum(axis=1)) / (2 * units.kB)
+    ts_m, ts_se = ts.mean(), ts.std(ddof=1) / np.sqrt(blocks)
+    tl_m, tl_se = batch_means(tl)
+    assert ts_se < 3.0 and tl_se < 30.0, (ts_se, tl_se)
+    assert abs(ts_m - 50.0) < Z * ts_se, (ts_m, ts_se)
+    assert abs(tl_m - 600.0 * 31 / 32) < Z * tl_se, (tl_m, tl_se)
+
+
+def test_relax_spins_finds_the_ferromagnet():
+    """fcc Co (ferromagnetic exchange) from a 60° cone: relax_spins reaches
+    torques ≤ 1e-8 eV with every spin parallel (|M| = 1, the ground state),
+    positions untouched; not reaching fmax raises and leaves the spins."""
+    atoms = fcc_cobalt(2, temperature_K=0.0, cone_deg=60.0)
+    pos = atoms.positions.copy()
+    n = relax_spins(atoms, fmax=1e-8)
+    assert 0 < n < 2000
+    s = ase_spin.get_spins(atoms)
+    assert 1.0 - np.linalg.norm(s.mean(axis=0)) < 1e-12
+    assert np.array_equal(atoms.positions, pos)
+    a = fcc_cobalt(2, temperature_K=0.0, cone_deg=60.0)
+    before = a.get_initial_magnetic_moments().copy()
+    with pytest.raises(RuntimeError, match="fmax"):
+        relax_spins(a, fmax=1e-12, steps=3)
+    assert np.array_equal(a.get_initial_magnetic_moments(), before)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(spin_damping=-0.1, friction=0.0), "spin_damping"),
+    (dict(spin_damping=0.1, friction=-1.0), "friction"),
+    (dict(spin_damping=0.1, friction=0.0, spin_temperature_K=-5.0), "spin_temperature_K"),
+    (dict(spin_damping=float("nan"), friction=0.0), "spin_damping"),
+])
+def test_bad_parameters_are_refused(kwargs, match):
+    atoms = co_scene()
+    before = atoms.get_initial_magnetic_moments().copy()
+    with pytest.raises(ValueError, match=match):
+        Langevin(atoms, 0.5 * units.fs, 300.0, **kwargs)
+    with pytest.raises(ValueError, match="temperature_K"):
+        Langevin(atoms, 0.5 * units.fs, -1.0, spin_damping=0.1, friction=0.0)
+    with pytest.raises(ValueError, match="positive timestep"):
+        Langevin(atoms, -0.5 * units.fs, 1.0, spin_damping=0.1, friction=0.0)
+    with pytest.raises(TypeError, match="rng"):
+        Langevin(atoms, 0.5 * units.fs, 1.0, spin_damping=0.1, friction=0.0, rng="seed")
+    assert np.array_equal(atoms.get_initial_magnetic_moments(), before)
+
+
+def test_set_temperature_takes_effect_mid_run():
+    """Spins in a field at 500 K, then set_temperature(0): with damping they
+    relax onto the field (no noise left in the step)."""
+    atoms = gas(np.full(8, 2.0))
+    atoms.calc = SpinLatticeCalculator([Zeeman(100.0, [0, 0, 1])])
+    dyn = Langevin(atoms, 2.0 * units.fs, 500.0, spin_damping=1.0, friction=0.0,
+                   lattice="frozen", rng=1)
+    dyn.run(20)
+    assert ase_spin.get_spins(atoms)[:, 2].min() < 0.99
+    dyn.set_temperature(0.0)
+    dyn.run(400)
+    assert ase_spin.get_spins(atoms)[:, 2].min() > 1.0 - 1e-9
+    with pytest.raises(ValueError, match="temperature_K"):
+        dyn.set_temperature(-3.0)
