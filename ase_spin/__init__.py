@@ -5,6 +5,7 @@ from .calculator import SpinLatticeCalculator
 from .hamiltonian import AtomsTooCloseError, Evaluator, Hamiltonian, Want
 from .constants import HBAR_LAMMPS, MU_B, MU_B_LAMMPS
 from .io import complete_frames, recover_trajectory
+from .lammps import read_lammps_spin_dump, write_lammps
 from .md import (HBAR, CollectivePRK, IntegrationError, SpinConvergenceError,
                  SpinLatticeDynamics, SpinMDLogger, SuzukiTrotter, UnstableStepError,
                  Langevin, relax_spins)
@@ -23,7 +24,7 @@ __all__ = [
     "set_spins", "get_spins", "get_moments",
     "CollectivePRK", "SuzukiTrotter", "SpinLatticeDynamics", "IntegrationError",
     "SpinConvergenceError", "UnstableStepError", "Langevin", "relax_spins", "SpinMDLogger", "HBAR", "HBAR_LAMMPS", "MU_B", "MU_B_LAMMPS",
-    "recover_trajectory", "complete_frames",
+    "recover_trajectory", "complete_frames", "write_lammps", "read_lammps_spin_dump",
     "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic", "Zeeman",
     "UniaxialAnisotropy", "CubicAnisotropy", "DMI", "BiquadraticExchange",
     "Tabulated", "ShellExchange", "neighbor_shells", "magnetic_symmetry", "read_tb2j",

@@ -54,6 +54,15 @@ class UniaxialAnisotropy(SingleSiteTerm):
     def __repr__(self):
         return f"UniaxialAnisotropy(K={self.K!r}, axis={self.axis.tolist()})"
 
+    def lammps(self, types):
+        """``fix precession/spin anisotropy K x y z``, one per magnetic species
+        when K differs between them."""
+        from ..lammps import LammpsFix, _f, _v
+
+        axis = _v(types.vector(self.axis))
+        return [LammpsFix("precession/spin", f"anisotropy {_f(K)} {axis}", group)
+                for group, K in types.site_groups(self.K, "UniaxialAnisotropy K")]
+
     def bind(self, system):
         return (per_atom(self.K, system, "UniaxialAnisotropy K"), np.array(self.axis))
 
@@ -133,6 +142,26 @@ class CubicAnisotropy(SingleSiteTerm):
 
     def __repr__(self):
         return f"CubicAnisotropy(K1={self.K1!r}, K2={self.K2!r}, axes={self.axes.tolist()})"
+
+    def lammps(self, types):
+        """``fix precession/spin cubic K1 K2 n1 n2 n3``, one per magnetic species
+        when K1 or K2 differ between them."""
+        from collections.abc import Mapping
+
+        from ..lammps import LammpsFix, _f, _v
+
+        axes = " ".join(_v(types.vector(n)) for n in self.axes)
+        if isinstance(self.K1, Mapping) or isinstance(self.K2, Mapping):
+            both = {}
+            for s, m in zip(types.symbols, types.magnetic):
+                k = [K[s] if isinstance(K, Mapping) and s in K else K for K in (self.K1, self.K2)]
+                if m and not any(isinstance(v, Mapping) for v in k):
+                    both[s] = tuple(k)
+            groups = types.site_groups(both, "CubicAnisotropy K1, K2")
+        else:
+            groups = types.site_groups((self.K1, self.K2), "CubicAnisotropy K1, K2")
+        return [LammpsFix("precession/spin", f"cubic {_f(K1)} {_f(K2)} {axes}", group)
+                for group, (K1, K2) in groups]
 
     def bind(self, system):
         return (per_atom(self.K1, system, "CubicAnisotropy K1"),

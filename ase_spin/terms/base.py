@@ -229,6 +229,16 @@ class Term(Parameterised):
         again whenever the system's cell, periodicity or moments change."""
         raise NotImplementedError
 
+    def lammps(self, types):
+        """This term as LAMMPS input, for :func:`ase_spin.lammps.write_lammps`: a
+        list of :class:`~ase_spin.lammps.LammpsPair` (a pair style, its
+        ``pair_coeff`` lines and ``pair_modify`` options) and
+        :class:`~ase_spin.lammps.LammpsFix` (e.g. ``precession/spin``) for the
+        atom types ``types`` (:class:`~ase_spin.lammps.LammpsTypes`: symbols by
+        type, which are magnetic, the rotation into LAMMPS's frame). A term
+        LAMMPS cannot express raises NotImplementedError saying why."""
+        raise NotImplementedError(f"LAMMPS has no counterpart of {type(self).__name__}")
+
     def __repr__(self):
         return f"{type(self).__name__}(...)"
 

@@ -100,6 +100,33 @@ class BiquadraticExchange(SpinTerm):
         return (f"BiquadraticExchange(J={self.J!r}, K={self.K!r}, rc={self.rc}, "
                 f"offset={self.offset})")
 
+    def lammps(self, types):
+        """``pair_style spin/exchange/biquadratic rc`` with ``pair_coeff I J
+        biquadratic rc J1 J2 J3 K1 K2 K3 [offset yes]``: Bethe–Slater J and K
+        only (LAMMPS's form)."""
+        from ..lammps import LammpsPair, _f
+        from .base import resolve_pairs
+        from .exchange import BetheSlater
+
+        tables = [resolve_pairs(c, types.symbols, f"BiquadraticExchange {what}")
+                  for c, what in ((self.J, "J"), (self.K, "K"))]
+        coeffs = []
+        for i, j, si, sj in types.pairs():
+            args = []
+            for table in tables:
+                c = table[i - 1, j - 1]
+                if c is not None and type(c) is not BetheSlater:
+                    raise NotImplementedError(
+                        f"the {type(c).__name__} coupling of pair {si}-{sj}: LAMMPS's "
+                        "spin/exchange/biquadratic takes only the Bethe–Slater form")
+                if c is None or not (types.magnetic[i - 1] and types.magnetic[j - 1]):
+                    args.append("0.0 0.0 1.0")
+                else:
+                    args.append(f"{_f(c.J1)} {_f(c.J2)} {_f(c.J3)}")
+            coeffs.append((i, j, f"biquadratic {_f(self.rc)} {' '.join(args)}"
+                           + (" offset yes" if self.offset else "")))
+        return [LammpsPair("spin/exchange/biquadratic", _f(self.rc), coeffs)]
+
     @classmethod
     def _compiled_pass(cls):
         if "_pair_pass" not in cls.__dict__:

@@ -167,6 +167,26 @@ class DMI(SpinTerm):
     def __repr__(self):
         return f"DMI({self.D!r}, {self.direction!r}, rc={self.rc})"
 
+    def lammps(self, types):
+        """``pair_style spin/dmi rc`` with ``pair_coeff I J dmi rc D dx dy dz``
+        per pair of types, (dx, dy, dz) a unit vector (LAMMPS divides it by its
+        squared length). Energy and magnetic forces as here; LAMMPS's lattice
+        force differs (see the class docstring)."""
+        from ..lammps import LammpsPair, _f, _v
+
+        D = _pair_table(self.D, types.symbols, "DMI D")
+        d = _pair_table(self.direction, types.symbols, "DMI direction")
+        coeffs = []
+        for i, j, _, _ in types.pairs():
+            a, b = i - 1, j - 1
+            if D[a, b] is None or d[a, b] is None or not (types.magnetic[a]
+                                                          and types.magnetic[b]):
+                strength, direction = 0.0, np.array([0.0, 0.0, 1.0])
+            else:
+                strength, direction = D[a, b], types.vector(d[a, b])
+            coeffs.append((i, j, f"dmi {_f(self.rc)} {_f(strength)} {_v(direction)}"))
+        return [LammpsPair("spin/dmi", _f(self.rc), coeffs)]
+
     @classmethod
     def _compiled_pass(cls):
         if "_pair_pass" not in cls.__dict__:

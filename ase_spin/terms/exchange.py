@@ -281,6 +281,32 @@ class Exchange(SpinTerm):
         python = (table[:, :, _FORM] == _PYTHON).any()
         return table, (couplings if python else None)
 
+    def lammps(self, types):
+        """``pair_style spin/exchange rc`` with ``pair_coeff I J exchange rc J1 J2
+        J3 [offset yes]`` per pair of types: Bethe–Slater couplings only (LAMMPS
+        has no other J(r) and no tabulated spin pair style). Pairs switched off
+        (None) or with a non-magnetic species get J1 = 0: LAMMPS's exchange acts
+        on the unit spins whatever their moment."""
+        from ..lammps import LammpsPair, _f
+
+        couplings = resolve_pairs(self.coupling, types.symbols, "Exchange coupling")
+        coeffs = []
+        for i, j, _, _ in types.pairs():
+            c = couplings[i - 1, j - 1]
+            if c is not None and type(c) is not BetheSlater:
+                raise NotImplementedError(
+                    f"the {type(c).__name__} coupling of pair {types.symbols[i - 1]}-"
+                    f"{types.symbols[j - 1]}: LAMMPS's spin/exchange has only the "
+                    "Bethe–Slater form J(r) = 4 J1 (r/J3)² [1 − J2 (r/J3)²] e^{−(r/J3)²}, and "
+                    "no tabulated spin pair style")
+            if c is None or not (types.magnetic[i - 1] and types.magnetic[j - 1]):
+                args = "0.0 0.0 1.0"
+            else:
+                args = f"{_f(c.J1)} {_f(c.J2)} {_f(c.J3)}"
+            coeffs.append((i, j, f"exchange {_f(self.rc)} {args}"
+                           + (" offset yes" if self.offset else "")))
+        return [LammpsPair("spin/exchange", _f(self.rc), coeffs)]
+
     @property
     def energy_offset(self):
         return 1.0 if self.offset else 0.0

@@ -119,6 +119,30 @@ class LennardJones(Term):
                 table[a, b] = row
         return table
 
+    def lammps(self, types):
+        """``pair_style lj/cut`` with one ``pair_coeff I J ε σ rc`` per pair of
+        types (a switched-off pair: ε = 0); ``"shift"`` is ``pair_modify shift
+        yes``. ``"smooth"`` is refused: LAMMPS's smoothed LJ styles (lj/smooth,
+        lj/smooth/linear, lj/gromacs) switch the force, not the energy by this S(r)."""
+        from ..lammps import LammpsPair, _f
+
+        if self.mode == "smooth":
+            raise NotImplementedError(
+                'cutoff="smooth" (ASE\'s energy switching) has no LAMMPS pair style; '
+                'use cutoff="shift" (pair_modify shift yes) or "plain"')
+        symbols = types.symbols
+        eps = resolve_pairs(self.epsilon, symbols, "LennardJones epsilon")
+        sig = resolve_pairs(self.sigma, symbols, "LennardJones sigma")
+        rcs = resolve_pairs(self.rc, symbols, "LennardJones rc")
+        coeffs = []
+        for i, j, _, _ in types.pairs():
+            e, s, rc = eps[i - 1, j - 1], sig[i - 1, j - 1], rcs[i - 1, j - 1]
+            if e is None or e == 0.0 or s is None:
+                e, s = 0.0, 1.0
+            coeffs.append((i, j, f"{_f(e)} {_f(s)} {_f(rc)}"))
+        return [LammpsPair("lj/cut", _f(self.cutoff), coeffs,
+                           ["shift yes"] if self.mode == "shift" else [])]
+
     def compute(self, positions, pairs, types, table, forces, energies, want):
         """Add this term's forces (and energies) into the given arrays.
 

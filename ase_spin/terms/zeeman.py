@@ -73,6 +73,23 @@ class Zeeman(SingleSiteTerm):
     def __repr__(self):
         return f"Zeeman({self.H.tolist()}, g={self.g}, mu_B={self.mu_B})"
 
+    def lammps(self, types):
+        """``fix precession/spin zeeman H x y z``: LAMMPS's energy is
+        −2 μB' μ_i s·H with its μB' = 5.78901e-5 eV/T, so H is written scaled by
+        g μB / (2 μB') (exactly H with g = 2, ``mu_B=MU_B_LAMMPS``)."""
+        from ..constants import MU_B_LAMMPS
+        from ..lammps import LammpsFix, _f, _v
+
+        scale = self.g * self.mu_B / (2.0 * MU_B_LAMMPS)
+        if self.direction is not None:
+            magnitude, direction = self.field, self.direction
+        else:
+            magnitude = float(np.linalg.norm(self.H))
+            direction = self.H if magnitude > 0 else np.array([0.0, 0.0, 1.0])
+        magnitude = magnitude if scale == 1.0 else magnitude * scale
+        return [LammpsFix("precession/spin", f"zeeman {_f(magnitude)} "
+                          f"{_v(types.vector(direction))}")]
+
     def bind(self, system):
         h = (self.g * self.mu_B) * system.moments[:, None] * self.H[None, :]
         return (np.ascontiguousarray(h),)

@@ -1,0 +1,666 @@
+"""Hand a scene to LAMMPS SPIN, and read its trajectories back.
+
+:func:`write_lammps` writes what ``mpirun lmp -in in.spin`` needs on a
+cluster: a data file (``atom_style spin``), the input deck with the
+Hamiltonian (each term gives its own LAMMPS form, :meth:`Term.lammps`), the
+integrator (``fix nve/spin``, thermostats), thermo output and a dump of
+positions, velocities, spins, forces and magnetic forces.
+:func:`read_lammps_spin_dump` reads such dumps back as :class:`ase.Atoms` with
+spins in ``initial_magmoms`` and forces, magnetic forces and energies as
+calculator results, ready for ``ase.io.write('md.traj', frames)``.
+
+Conventions (LAMMPS metal units, see docs/lammps.md): Å, ps, eV, g/mol;
+velocities Å/ps (ASE's × 1000 fs); the spin of atom i is the unit direction
+(spx, spy, spz) and the magnitude sp = μ_i (μB); LAMMPS's ``fm`` is B_i/ħ
+(rad/ps) with its own ħ = hplanck/2π = 6.582119102e-4 eV·ps. Atom i of the
+Atoms is atom ID i + 1; type k is the k-th species in alphabetical order (the
+data file labels it). A cell that is not lower triangular is rotated into
+LAMMPS's frame with everything that has a direction (positions, velocities,
+spins, fields, axes) and rotated back on reading.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from ase import Atoms, units
+
+from .constants import LAMMPS_HBAR_EV_PS
+
+__all__ = ["write_lammps", "read_lammps_spin_dump", "LammpsTypes", "LammpsPair", "LammpsFix",
+           "LammpsFiles", "LammpsIntegratorWarning"]
+
+#: ASE time units per LAMMPS metal time unit (ps).
+PS = 1000.0 * units.fs
+
+_HEADER = "ase_spin -> LAMMPS (atom_style spin)"
+
+
+class LammpsIntegratorWarning(UserWarning):
+    """The exported deck integrates differently from the integrator given."""
+
+
+def _f(x):
+    """A float as the shortest text that reads back to the same double."""
+    return repr(float(x))
+
+
+def _v(v):
+    return " ".join(_f(x) for x in v)
+
+
+@dataclass
+class LammpsPair:
+    """One pair style of a term, as LAMMPS takes it.
+
+    ``style`` (``"lj/cut"``), ``args`` (its global arguments, ``"4.7"``),
+    ``coeffs``: (I, J, arguments) for ``pair_coeff I J [style] arguments`` with
+    I, J type numbers or ``"*"``; ``modify``: ``pair_modify`` options of this
+    style (``"shift yes"``); ``files``: files the coefficients name (potential
+    files), copied next to the deck and named there by their base name.
+    """
+
+    style: str
+    args: str = ""
+    coeffs: list = field(default_factory=list)
+    modify: list = field(default_factory=list)
+    files: list = field(default_factory=list)
+
+
+@dataclass
+class LammpsFix:
+    """A fix of a term: ``fix ID group style args`` (``style`` e.g.
+    ``"precession/spin"``, ``args`` ``"zeeman 1.0 0 0 1"``); ``energy``: its
+    energy is part of the potential energy (``fix_modify ID energy yes``)."""
+
+    style: str
+    args: str
+    group: str = "all"
+    energy: bool = True
+
+
+class LammpsTypes:
+    """What a term's :meth:`~ase_spin.terms.base.Term.lammps` is given: the
+    scene's LAMMPS atom types and frame.
+
+    ``symbols[k]`` is the species of type k + 1; ``magnetic[k]`` whether its
+    atoms carry moments (a species is all magnetic or all non-magnetic);
+    ``rotation``: lab-frame vectors v are ``v @ rotation`` in LAMMPS's frame
+    (:meth:`vector`); ``group(symbol)`` names the group of one species.
+    """
+
+    def __init__(self, symbols, magnetic, rotation=None):
+        self.symbols = tuple(symbols)
+        self.magnetic = tuple(bool(m) for m in magnetic)
+        self.rotation = None if rotation is None else np.asarray(rotation, dtype=float)
+
+    @property
+    def ntypes(self):
+        return len(self.symbols)
+
+    def type_of(self, symbol):
+        return self.symbols.index(symbol) + 1
+
+    def group(self, symbol):
+        return f"type_{symbol}"
+
+    def pairs(self):
+        """(I, J, symbol_I, symbol_J) for every pair of types I ≤ J."""
+        for a in range(self.ntypes):
+            for b in range(a, self.ntypes):
+                yield a + 1, b + 1, self.symbols[a], self.symbols[b]
+
+    def vector(self, v):
+        """A lab-frame direction or field in LAMMPS's frame."""
+        v = np.asarray(v, dtype=float)
+        return v if self.rotation is None else v @ self.rotation
+
+    def site_groups(self, value, what):
+        """(group, value) for a per-species parameter of a single-site term
+        (one value, or a mapping symbol -> value): one group ``all`` when every
+        type is magnetic and the value is the same, else one group per
+        magnetic species (LAMMPS's ``precession/spin`` acts on unit spins
+        whatever their moment, so non-magnetic species must be left out)."""
+        from collections.abc import Mapping
+
+        values = {}
+        for s, m in zip(self.symbols, self.magnetic):
+            if not m:
+                continue
+            if isinstance(value, Mapping):
+                if s not in value:
+                    raise ValueError(f"{what}: no value for the magnetic species {s}")
+                values[s] = value[s]
+            else:
+                values[s] = value
+        if not values:
+            return []
+        distinct = {repr(v) for v in values.values()}
+        if all(self.magnetic) and len(distinct) == 1:
+            return [("all", next(iter(values.values())))]
+        return [(self.group(s), v) for s, v in values.items()]
+
+
+@dataclass
+class LammpsFiles:
+    """What :func:`write_lammps` wrote: the directory, the data file, the
+    input deck, the dump and energy files the deck will write, and the
+    notices (integrator differences) it issued."""
+
+    directory: Path
+    data: Path
+    input: Path
+    dump: Path
+    energy: Path
+    symbols: tuple
+    notices: list
+
+    def command(self, ranks=None):
+        """The shell command that runs the deck in its directory."""
+        run = f"lmp -in {self.input.name}"
+        return f"cd {self.directory} && " + (f"mpirun -n {ranks} {run}" if ranks else run)
+
+
+# -- the frame --------------------------------------------------------------
+
+def _lammps_frame(cell):
+    """(box, rotation): LAMMPS's lower-triangular cell and the rotation R with
+    cell @ R = box (None when the cell is lower triangular already)."""
+    cell = np.asarray(cell, dtype=float)
+    if not np.any(cell[np.triu_indices(3, 1)]) and np.all(np.diag(cell) > 0):
+        return cell.copy(), None
+    if abs(np.linalg.det(cell)) < 1e-12:
+        raise ValueError("write_lammps needs three non-degenerate cell vectors (LAMMPS's box); "
+                         f"got cell {cell.tolist()}")
+    # cell.T = Q R (QR), so cell @ Q = R.T: lower triangular
+    q, r = np.linalg.qr(cell.T)
+    signs = np.sign(np.diag(r))
+    q = q * signs[None, :]
+    box = cell @ q
+    box[np.triu_indices(3, 1)] = 0.0
+    if np.linalg.det(q) < 0:
+        raise ValueError("write_lammps: the cell is left-handed; LAMMPS needs a right-handed "
+                         "cell (reorder or negate a cell vector)")
+    return box, q
+
+
+# -- the Hamiltonian ------------------------------------------------------------
+
+def _terms(hamiltonian, atoms):
+    from .calculator import SpinLatticeCalculator
+    from .hamiltonian import Hamiltonian
+    from .terms.base import Term
+
+    h = hamiltonian if hamiltonian is not None else atoms.calc
+    if isinstance(h, SpinLatticeCalculator):
+        h = h.hamiltonian
+    if isinstance(h, Term):
+        h = Hamiltonian([h])
+    elif isinstance(h, (list, tuple)):
+        h = Hamiltonian(h)
+    if not isinstance(h, Hamiltonian):
+        raise TypeError("write_lammps needs the Hamiltonian: atoms.calc a SpinLatticeCalculator, "
+                        f"or hamiltonian= a Hamiltonian, calculator or list of terms; got {h!r}")
+    return h
+
+
+def _term_parts(hamiltonian, types):
+    """Every term's LAMMPS form, refusals collected into one message."""
+    parts, refused = [], []
+    for term, name in zip(hamiltonian.terms, hamiltonian.term_names):
+        try:
+            form = term.lammps(types)
+        except NotImplementedError as err:
+            refused.append(f"- {name} ({type(term).__name__}): {err}")
+            continue
+        parts.append((name, form))
+    if refused:
+        raise NotImplementedError("these terms have no LAMMPS counterpart, so the scene "
+                                  "cannot be exported:\n" + "\n".join(refused))
+    return parts
+
+
+def _pair_commands(parts, directory):
+    pairs = [p for _, form in parts for p in form if isinstance(p, LammpsPair)]
+    if not pairs:
+        return []
+    styles = [p.style for p in pairs]
+    hybrid = len(pairs) > 1
+    lines = []
+    if hybrid:
+        lines.append("pair_style hybrid/overlay " + " ".join(
+            f"{p.style} {p.args}".strip() for p in pairs))
+    else:
+        lines.append(f"pair_style {pairs[0].style} {pairs[0].args}".rstrip())
+    for p in pairs:
+        for f in p.files:
+            shutil.copy(f, Path(directory) / Path(f).name)
+    for k, p in enumerate(pairs):
+        # a style used twice in hybrid/overlay is named with its instance number
+        name = p.style
+        if styles.count(p.style) > 1:
+            name = f"{p.style} {styles[:k + 1].count(p.style)}"
+        for i, j, args in p.coeffs:
+            lines.append(f"pair_coeff {i} {j} {name + ' ' if hybrid else ''}{args}".rstrip())
+        for option in p.modify:
+            lines.append(f"pair_modify {'pair ' + name + ' ' if hybrid else ''}{option}")
+    return lines
+
+
+def _fix_commands(parts):
+    lines = []
+    for name, form in parts:
+        fixes = [p for p in form if isinstance(p, LammpsFix)]
+        for k, fx in enumerate(fixes):
+            fid = name if len(fixes) == 1 else f"{name}_{k + 1}"
+            lines.append(f"fix {fid} {fx.group} {fx.style} {fx.args}")
+            if fx.energy:
+                lines.append(f"fix_modify {fid} energy yes")
+    return lines
+
+
+# -- the integrator ---------------------------------------------------------------
+
+def _integrator(dyn, timestep, lattice, notices):
+    """(timestep in ASE units, lattice keyword, thermostat settings or None)."""
+    from .md.base import SpinLatticeDynamics
+    from .md.collective import CollectivePRK
+    from .md.splitting import SuzukiTrotter
+
+    if dyn is None:
+        if timestep is None:
+            raise ValueError("write_lammps needs the timestep: pass an integrator (dynamics=) "
+                             "or timestep= (ASE time units, e.g. 0.1 * ase.units.fs)")
+        if lattice not in ("moving", "frozen"):
+            raise ValueError(f'lattice must be "moving" or "frozen", got {lattice!r}')
+        return float(timestep), lattice, None
+    if not isinstance(dyn, SpinLatticeDynamics):
+        raise TypeError(f"write_lammps takes an ase_spin integrator, got {type(dyn).__name__}")
+    if dyn.precession != "moment":
+        raise ValueError("LAMMPS SPIN integrates the moment convention ds/dt = (1/ħ) B × s "
+                         f"(precession=\"moment\"); this integrator has precession="
+                         f"{dyn.precession!r}, a different equation of motion")
+    if dyn.gyromagnetic != "lammps":
+        raise ValueError("LAMMPS SPIN's precession has no 1/μ_i (gyromagnetic=\"lammps\"); this "
+                         f"integrator has gyromagnetic={dyn.gyromagnetic!r}, a different equation "
+                         "of motion that LAMMPS cannot run")
+    if isinstance(dyn, CollectivePRK):
+        notices.append("LAMMPS has no collective (CollectivePRK) integrator: the deck uses fix "
+                       "nve/spin, the sequential Suzuki–Trotter splitting (SuzukiTrotter here); "
+                       "trajectories agree only to the methods' error, O(dt²)")
+    elif not isinstance(dyn, SuzukiTrotter) and not hasattr(dyn, "spin_damping"):
+        notices.append(f"{type(dyn).__name__} is exported as fix nve/spin (the sequential "
+                       "Suzuki–Trotter splitting)")
+    if dyn.order != 2:
+        notices.append(f"order {dyn.order} has no LAMMPS counterpart: the deck runs fix "
+                       "nve/spin's second-order step")
+    if getattr(dyn, "rotation", "cayley") != "cayley":
+        notices.append("rotation=\"exact\" differs from LAMMPS's Cayley rotation of each spin; "
+                       "trajectories agree to O(dt²)")
+    if abs(dyn.hbar / (LAMMPS_HBAR_EV_PS * PS) - 1.0) > 1e-12:
+        notices.append(f"the integrator's ħ ({dyn.hbar / PS:.10g} eV·ps) is not LAMMPS's "
+                       f"({LAMMPS_HBAR_EV_PS:.10g} eV·ps), which the deck will use")
+    thermostat = None
+    if hasattr(dyn, "spin_damping"):
+        T = _attr(dyn, ("temperature_K",), None)
+        if T is None and getattr(dyn, "temp", None) is not None:
+            T = dyn.temp / units.kB
+        Ts = getattr(dyn, "spin_temperature_K", None)
+        thermostat = dict(T=float(T), T_spin=float(T if Ts is None else Ts),
+                          alpha=float(dyn.spin_damping),
+                          friction=float(_attr(dyn, ("friction", "fr"), 0.0) or 0.0))
+    return float(dyn.dt), "frozen" if dyn.frozen_lattice else "moving", thermostat
+
+
+def _attr(obj, names, default):
+    for n in names:
+        if getattr(obj, n, None) is not None:
+            return getattr(obj, n)
+    return default
+
+
+# -- the scene ----------------------------------------------------------------------
+
+def _scene_types(atoms, moments):
+    symbols = atoms.get_chemical_symbols()
+    species = sorted(set(symbols))
+    masses = atoms.get_masses()
+    sym = np.array(symbols)
+    mass_by_type, magnetic = [], []
+    for s in species:
+        m = masses[sym == s]
+        if not np.all(m == m[0]):
+            raise ValueError(f"LAMMPS gives one mass per atom type (species); the {s} atoms have "
+                             f"masses from {m.min()} to {m.max()} amu")
+        mass_by_type.append(float(m[0]))
+        mu = moments[sym == s]
+        if np.any(mu > 0) and np.any(mu == 0):
+            raise ValueError(f"some {s} atoms have moments and others none: LAMMPS's spin styles "
+                             "act on the unit spins of every atom of a type, so a species must be "
+                             "all magnetic or all non-magnetic (use another symbol or tag)")
+        magnetic.append(bool(np.any(mu > 0)))
+    return species, mass_by_type, magnetic
+
+
+def _data_file(atoms, species, masses, box, rotation, unit, mu):
+    n = len(atoms)
+    pos = atoms.positions if rotation is None else atoms.positions @ rotation
+    vel = atoms.get_velocities() * PS
+    if rotation is not None:
+        vel = vel @ rotation
+        unit = unit @ rotation
+    types = np.searchsorted(np.array(species), np.array(atoms.get_chemical_symbols())) + 1
+    rot = "none" if rotation is None else _v(rotation.ravel())
+    lines = [f"{_HEADER}; types {' '.join(species)}; rotation {rot}", "",
+             f"{n} atoms", f"{len(species)} atom types", ""]
+    lo = np.zeros(3)
+    hi = np.diag(box).copy()
+    for d in range(3):
+        if not atoms.pbc[d]:
+            # a shrink-wrapped direction: the box must hold every atom at the start
+            lo[d] = min(0.0, pos[:, d].min() - 1.0)
+            hi[d] = max(hi[d], pos[:, d].max() + 1.0)
+    for d, ax in enumerate("xyz"):
+        lines.append(f"{_f(lo[d])} {_f(hi[d])} {ax}lo {ax}hi")
+    if np.any(box[np.tril_indices(3, -1)]):
+        lines.append(f"{_f(box[1, 0])} {_f(box[2, 0])} {_f(box[2, 1])} xy xz yz")
+    lines += ["", "Atom Type Labels", ""]
+    lines += [f"{k + 1} {s}" for k, s in enumerate(species)]
+    lines += ["", "Masses", ""]
+    lines += [f"{k + 1} {_f(m)}" for k, m in enumerate(masses)]
+    lines += ["", "Atoms # spin", ""]
+    # non-magnetic atoms: a unit direction LAMMPS can normalise, magnitude 0
+    unit = np.where(mu[:, None] > 0, unit, [0.0, 0.0, 1.0])
+    for k, (t, x, s, m) in enumerate(zip(types.tolist(), pos.tolist(), unit.tolist(),
+                                         mu.tolist())):
+        lines.append(f"{k + 1} {t} {_v(x)} {_v(s)} {_f(m)}")
+    lines += ["", "Velocities", ""]
+    lines += [f"{k + 1} {_v(v)}" for k, v in enumerate(vel.tolist())]
+    return "\n".join(lines) + "\n"
+
+
+def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, timestep=None,
+                 lattice="moving", dump_interval=10, thermo_interval=None, seed=12345,
+                 data_name="atoms.data", input_name="in.spin", dump_name="dump.spin",
+                 energy_name="energy.spin"):
+    """Write a scene as a LAMMPS SPIN run: ``directory/atoms.data`` and
+    ``directory/in.spin``, to be run there with ``mpirun lmp -in in.spin``.
+
+    Parameters
+    ----------
+    directory : str or path
+        Created if missing; existing files of the same names are overwritten.
+    atoms : ase.Atoms
+        Positions, cell (any right-handed cell; rotated into LAMMPS's frame if not
+        lower triangular), pbc (periodic: ``p``, else shrink-wrapped ``s``),
+        masses (one per species), velocities, spins (``initial_magmoms`` (N, 3)).
+    dynamics : ase_spin integrator, optional
+        Its timestep, lattice mode and thermostat. SuzukiTrotter (Cayley,
+        order 2) is LAMMPS's ``fix nve/spin`` step; CollectivePRK and other
+        orders are exported as that step with a :class:`LammpsIntegratorWarning`;
+        precession="spin" or gyromagnetic="moment" (equations LAMMPS does not
+        have) are refused. An integrator with ``spin_damping`` (ase_spin's
+        Langevin) adds ``fix langevin/spin T α seed`` and, with a friction,
+        a lattice ``fix langevin T T 1/friction seed``.
+    steps : int
+        Steps the deck runs (``run steps``).
+    hamiltonian : Hamiltonian, SpinLatticeCalculator or list of terms, optional
+        Default ``atoms.calc``'s. Every term must have a LAMMPS form
+        (``term.lammps(types)``); those without are refused, all named in one
+        NotImplementedError.
+    timestep : float, optional
+        ASE time units, when no integrator is given (with ``lattice``).
+    dump_interval, thermo_interval : int
+        Steps between dump frames (and energy lines), and thermo lines
+        (default: the dump interval).
+    seed : int
+        Seed of LAMMPS's thermostats.
+
+    Returns
+    -------
+    LammpsFiles
+        The paths, the type symbols, the notices issued; ``.command(ranks)``
+        is the shell line that runs it.
+    """
+    from .spins import get_moments, split_moments
+
+    steps = int(steps)
+    if steps < 0:
+        raise ValueError(f"steps must be >= 0, got {steps}")
+    dump_interval = int(dump_interval)
+    if dump_interval < 1:
+        raise ValueError(f"dump_interval must be >= 1, got {dump_interval}")
+    thermo_interval = dump_interval if thermo_interval is None else int(thermo_interval)
+    if dynamics is not None and dynamics.atoms is not atoms:
+        raise ValueError("write_lammps: the integrator holds other Atoms than those given")
+    if atoms.constraints:
+        raise ValueError("write_lammps: constraints have no export yet "
+                         f"({', '.join(type(c).__name__ for c in atoms.constraints)}); remove "
+                         "them, or add the matching LAMMPS fix to the deck by hand")
+    notices = []
+    dt, lattice, thermostat = _integrator(dynamics, timestep, lattice, notices)
+    hamiltonian = _terms(hamiltonian, atoms)
+    unit, mu = split_moments(get_moments(atoms))
+    species, masses, magnetic = _scene_types(atoms, mu)
+    cell = atoms.cell.array.copy()
+    if not atoms.pbc.any():
+        cell = np.eye(3)  # no periodic direction: the box is shrink-wrapped to the atoms
+    elif not atoms.pbc.all():
+        if np.any(cell[~np.eye(3, dtype=bool)]):
+            raise ValueError("write_lammps: a cell with tilt needs periodic boundaries in "
+                             "every direction (LAMMPS triclinic boxes with non-periodic "
+                             "directions are not exported)")
+        for d in range(3):
+            if not cell[d, d] > 0:
+                cell[d, d] = 1.0  # a placeholder: shrink-wrapped to the atoms
+    box, rotation = _lammps_frame(cell)
+    types = LammpsTypes(species, magnetic, rotation)
+    parts = _term_parts(hamiltonian, types)
+    for text in notices:
+        warnings.warn(text, LammpsIntegratorWarning, stacklevel=2)
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    data = _data_file(atoms, species, masses, box, rotation, unit, mu)
+    (directory / data_name).write_text(data)
+
+    boundary = " ".join("p" if p else "s" for p in atoms.pbc)
+    deck = [f"# {_HEADER}: {len(atoms)} atoms, types {' '.join(species)}",
+            f"# run with: mpirun -n <ranks> lmp -in {input_name}"]
+    deck += [f"# NOTE: {t}" for t in notices]
+    deck += ["", "units metal", "atom_style spin",
+             "# nve/spin needs the atom map; no sorting keeps the sweep order of one rank",
+             "atom_modify map array sort 0 0.0", f"boundary {boundary}",
+             f"read_data {data_name}", ""]
+    deck += [f"group {types.group(s)} type {k + 1}" for k, s in enumerate(species)]
+    deck += [""] + _pair_commands(parts, directory)
+    deck += ["neighbor 1.0 bin", "neigh_modify every 1 delay 0 check yes", ""]
+    deck += _fix_commands(parts)
+    if thermostat is not None:
+        # langevin/spin after the precession fixes, before nve/spin (LAMMPS's rule)
+        deck.append(f"fix thermostat_spin all langevin/spin {_f(thermostat['T_spin'])} "
+                    f"{_f(thermostat['alpha'])} {int(seed)}")
+        if thermostat["friction"] > 0 and lattice == "moving":
+            damp = 1.0 / thermostat["friction"] / PS
+            deck.append(f"fix thermostat_lattice all langevin {_f(thermostat['T'])} "
+                        f"{_f(thermostat['T'])} {_f(damp)} {int(seed) + 1} zero yes")
+    deck += [f"fix integrate all nve/spin lattice {lattice}", f"timestep {_f(dt / PS)}", ""]
+    deck += ["compute magnetisation all spin",
+             "compute spin_state all property/atom sp spx spy spz fmx fmy fmz",
+             "variable pe equal pe", "variable ke equal ke",
+             f"fix energies all ave/time {dump_interval} 1 {dump_interval} v_pe v_ke "
+             f"file {energy_name} format ' %.17g'",
+             "thermo_style custom step time temp pe ke etotal press c_magnetisation[4] "
+             "c_magnetisation[5] c_magnetisation[6]",
+             f"thermo {thermo_interval}",
+             f"dump trajectory all custom {dump_interval} {dump_name} id type xu yu zu "
+             "vx vy vz c_spin_state[1] c_spin_state[2] c_spin_state[3] c_spin_state[4] "
+             "fx fy fz c_spin_state[5] c_spin_state[6] c_spin_state[7]",
+             "dump_modify trajectory sort id format float %.17g",
+             "", f"run {steps}", ""]
+    (directory / input_name).write_text("\n".join(deck))
+    return LammpsFiles(directory, directory / data_name, directory / input_name,
+                       directory / dump_name, directory / energy_name, tuple(species), notices)
+
+
+# -- reading back -------------------------------------------------------------------
+
+def _read_data_header(path):
+    """(symbols by type, rotation or None) from a data file written here, or
+    from its Atom Type Labels section (rotation None) for any other."""
+    text = Path(path).read_text()
+    first = text.split("\n", 1)[0]
+    m = re.match(re.escape(_HEADER) + r"; types (.*); rotation (.*)$", first)
+    if m:
+        rot = m.group(2).strip()
+        rotation = None if rot == "none" else np.array(rot.split(), float).reshape(3, 3)
+        return tuple(m.group(1).split()), rotation
+    labels = re.search(r"Atom Type Labels\s*\n\s*\n((?:\s*\d+\s+\S+\s*\n)+)", text)
+    if labels:
+        rows = [line.split() for line in labels.group(1).strip().splitlines()]
+        return tuple(s for _, s in sorted((int(k), s) for k, s in rows)), None
+    raise ValueError(f"{path}: no type labels found; pass symbols= to name the types")
+
+
+def _frames(path):
+    """Each frame of a LAMMPS text dump: (timestep, box lines, bounds header,
+    columns, rows)."""
+    with open(path) as fh:
+        lines = fh.read().splitlines()
+    k = 0
+    while k < len(lines):
+        if not lines[k].startswith("ITEM: TIMESTEP"):
+            raise ValueError(f"{path}: line {k + 1} is not a dump frame header: {lines[k]!r}")
+        step = int(lines[k + 1])
+        n = int(lines[k + 3])
+        bounds = lines[k + 4]
+        box = lines[k + 5:k + 8]
+        columns = lines[k + 8].split()[2:]
+        rows = lines[k + 9:k + 9 + n]
+        if len(rows) < n:
+            return  # a frame cut short: the run is still going or was killed
+        yield step, bounds, box, columns, rows
+        k += 9 + n
+
+
+def _box(bounds, box):
+    """Cell vectors and pbc from a dump's BOX BOUNDS (LAMMPS's bounding-box form
+    for triclinic boxes); positions in dumps are absolute, the origin is not needed."""
+    words = bounds.split()[3:]
+    rows = np.array([[float(x) for x in line.split()] for line in box])
+    flags = [w for w in words if w not in ("xy", "xz", "yz")]
+    pbc = [f == "pp" for f in flags]
+    if "xy" in words:
+        xlo_b, xhi_b, xy = rows[0]
+        ylo_b, yhi_b, xz = rows[1]
+        zlo, zhi, yz = rows[2]
+        xlo = xlo_b - min(0.0, xy, xz, xy + xz)
+        xhi = xhi_b - max(0.0, xy, xz, xy + xz)
+        ylo = ylo_b - min(0.0, yz)
+        yhi = yhi_b - max(0.0, yz)
+        cell = np.array([[xhi - xlo, 0, 0], [xy, yhi - ylo, 0], [xz, yz, zhi - zlo]])
+    else:
+        cell = np.diag(rows[:, 1] - rows[:, 0])
+    return cell, pbc
+
+
+def read_lammps_spin_dump(path, index=":", *, data=None, symbols=None, energy=None):
+    """Frames of a LAMMPS text dump with spins as :class:`ase.Atoms`.
+
+    ``initial_magmoms`` (N, 3) = sp (spx, spy, spz), μ_i s_i; positions (the
+    unwrapped ``xu yu zu`` if dumped, else ``x y z``), cell and pbc from the box,
+    velocities (Å/ps → ASE units), atoms in ID order. Forces (``fx fy fz``),
+    magnetic forces B = ħ fm (eV, LAMMPS's ħ; ``fmx fmy fmz`` or the
+    ``c_spin_state`` columns written by :func:`write_lammps`) and, when the
+    energy file written next to the dump is there, the energy, are
+    calculator results (``atoms.get_forces()``, ``atoms.calc.results``).
+    ``energy``: the energy file (default ``energy.spin`` next to the dump, if
+    there; columns step, potential energy, kinetic energy).
+
+    Types become symbols through ``symbols`` (a sequence, type k+1 =
+    symbols[k], or a mapping type -> symbol), else the data file ``data``
+    (default: ``atoms.data`` next to the dump, if there) whose rotation is
+    also undone. ``index``: an int, a slice or a string such as ":" or "-1".
+    """
+    from ase.calculators.singlepoint import SinglePointCalculator
+    from ase.io.formats import string2index
+
+    path = Path(path)
+    rotation = None
+    if data is None and symbols is None and (path.parent / "atoms.data").is_file():
+        data = path.parent / "atoms.data"
+    if data is not None:
+        by_type, rotation = _read_data_header(data)
+        if symbols is None:
+            symbols = by_type
+    if symbols is None:
+        raise ValueError(f"{path}: give symbols= (by type) or data= (the data file) to name "
+                         "the atom types")
+    if isinstance(symbols, dict):
+        type_symbol = {int(k): v for k, v in symbols.items()}
+    else:
+        type_symbol = {k + 1: s for k, s in enumerate(symbols)}
+    energies = {}
+    energy_file = Path(energy) if energy is not None else path.parent / "energy.spin"
+    if energy is not None or energy_file.is_file():
+        for line in energy_file.read_text().splitlines():
+            if line.strip() and not line.startswith("#"):
+                step, pe, ke = line.split()[:3]
+                energies[int(step)] = (float(pe), float(ke))
+    if isinstance(index, str):
+        index = string2index(index)
+    frames = list(_frames(path))
+    chosen = frames[index] if isinstance(index, slice) else [frames[index]]
+    out = []
+    for step, bounds, box, columns, rows in chosen:
+        table = np.array([r.split() for r in rows], dtype=float)
+        col = {c: k for k, c in enumerate(columns)}
+        table = table[np.argsort(table[:, col["id"]])]
+
+        def get(*names):
+            if all(nm in col for nm in names):
+                return table[:, [col[nm] for nm in names]]
+            return None
+
+        cell, pbc = _box(bounds, box)
+        pos = get("xu", "yu", "zu")
+        if pos is None:
+            pos = get("x", "y", "z")
+        unit = get("spx", "spy", "spz")
+        mag = get("sp")
+        fm = get("fmx", "fmy", "fmz")
+        if unit is None and "c_spin_state[1]" in col:
+            mag = get("c_spin_state[1]")
+            unit = get("c_spin_state[2]", "c_spin_state[3]", "c_spin_state[4]")
+            fm = get("c_spin_state[5]", "c_spin_state[6]", "c_spin_state[7]")
+        vel = get("vx", "vy", "vz")
+        forces = get("fx", "fy", "fz")
+        back = (lambda v: v) if rotation is None else (lambda v: v @ rotation.T)
+        try:
+            syms = [type_symbol[int(t)] for t in table[:, col["type"]]]
+        except KeyError as err:
+            raise ValueError(f"{path}: atom type {err.args[0]} has no symbol") from None
+        atoms = Atoms(syms, positions=back(pos), cell=back(cell), pbc=pbc)
+        if vel is not None:
+            atoms.set_velocities(back(vel) / PS)
+        if unit is not None:
+            atoms.set_initial_magnetic_moments(back(unit) * mag)
+        results = {}
+        if forces is not None:
+            results["forces"] = back(forces)
+        if step in energies:
+            results["energy"] = energies[step][0]
+            results["free_energy"] = energies[step][0]
+        if results or fm is not None:
+            atoms.calc = SinglePointCalculator(atoms, **results)
+        if fm is not None:
+            # not an ASE property name: set after (SinglePointCalculator refuses it)
+            atoms.calc.results["magnetic_forces"] = back(fm) * LAMMPS_HBAR_EV_PS
+        atoms.info["timestep"] = step
+        out.append(atoms)
+    return out if isinstance(index, slice) else out[0]
