@@ -11,7 +11,7 @@ from .md import (HBAR, CollectivePRK, IntegrationError, SpinConvergenceError,
                  Langevin, relax_spins)
 from .spins import get_moments, get_spins, set_spins
 from .viewing import plot_spins, spin_colors, write_ovito_xyz
-from .terms import (BetheSlater, BiquadraticExchange, Coupling, Cubic, Exchange, LennardJones, Term,
+from .terms import (BetheSlater, BiquadraticExchange, CalculatorTerm, Coupling, Cubic, Exchange, LennardJones, Term,
                     CubicAnisotropy, DMI, UniaxialAnisotropy, Zeeman)
 from .terms import ShellExchange, Tabulated
 from .symmetry import magnetic_symmetry, neighbor_shells
@@ -26,7 +26,7 @@ __all__ = [
     "SpinConvergenceError", "UnstableStepError", "Langevin", "relax_spins", "SpinMDLogger", "HBAR", "HBAR_LAMMPS", "MU_B", "MU_B_LAMMPS",
     "recover_trajectory", "complete_frames", "write_lammps", "read_lammps_spin_dump",
     "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic", "Zeeman",
-    "UniaxialAnisotropy", "CubicAnisotropy", "DMI", "BiquadraticExchange",
+    "UniaxialAnisotropy", "CubicAnisotropy", "DMI", "BiquadraticExchange", "CalculatorTerm",
     "Tabulated", "ShellExchange", "neighbor_shells", "magnetic_symmetry", "read_tb2j",
     "write_ovito_xyz", "spin_colors", "plot_spins",
 ]

@@ -2,13 +2,32 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from ase.calculators.calculator import Calculator, PropertyNotImplementedError, all_changes
 
 from .hamiltonian import AtomsTooCloseError, Hamiltonian, Want
+from .serialize import decode_term, encode_term
 from .spins import get_moments, split_moments
 
-__all__ = ["SpinLatticeCalculator"]
+__all__ = ["SpinLatticeCalculator", "NoMomentsWarning"]
+
+
+class NoMomentsWarning(UserWarning):
+    """The Hamiltonian has spin terms but the atoms carry no magnetic moments."""
+
+
+def _warn_no_moments(hamiltonian, mu):
+    """Atoms read from a structure file usually carry no moments: with spin
+    terms in the Hamiltonian that silently gives a non-magnetic system."""
+    spin_terms = hamiltonian.spin_term_names
+    if spin_terms and len(mu) and not (mu > 0.0).any():
+        warnings.warn(
+            f"the Hamiltonian has spin terms ({', '.join(spin_terms)}) but the atoms "
+            "carry no magnetic moments, so these terms contribute nothing and no spin "
+            "moves: set spins with ase_spin.set_spins(atoms, directions, magnitudes)",
+            NoMomentsWarning, stacklevel=4)
 
 
 class SpinLatticeCalculator(Calculator):
@@ -30,7 +49,10 @@ class SpinLatticeCalculator(Calculator):
     - ``magnetic_forces``: B_i = −∂E/∂s_i (eV) with s_i the unit direction,
       the effective field in energy units (LAMMPS's ``fm`` is B/ħ); zero rows
       for non-magnetic atoms;
-    - ``magmoms``: the (N, 3) moment vectors μ_i s_i.
+    - ``magmoms``: the (N, 3) moment vectors μ_i s_i;
+    - ``magmom``: ASE's total moment, a scalar: |Σ_i μ_i s_i| (μB), the length
+      of the total moment (whatever its direction; the vector is
+      :meth:`get_magnetic_moment_vector`, ``results['magmom_vector']``).
 
     ``results['energy_terms']`` splits the energy by term. Energy, forces and
     magnetic forces come from one pass whenever any of them is asked for (as
@@ -40,7 +62,7 @@ class SpinLatticeCalculator(Calculator):
     """
 
     implemented_properties = ["energy", "free_energy", "energies", "forces", "stress",
-                              "magmoms", "magnetic_forces"]
+                              "magmoms", "magmom", "magnetic_forces"]
     nolabel = True
 
     def __init__(self, terms, skin=0.3, *, label=None, atoms=None, directory="."):
@@ -63,8 +85,33 @@ class SpinLatticeCalculator(Calculator):
         return changes
 
     def todict(self):
-        return {"terms": [repr(t) for t in self.hamiltonian.terms],
+        """The Hamiltonian as JSON-ready data (what a trajectory keeps as this
+        calculator's parameters): :meth:`from_dict` rebuilds it."""
+        return {"terms": [encode_term(t) for t in self.hamiltonian.terms],
                 "skin": self.hamiltonian.skin}
+
+    @classmethod
+    def from_dict(cls, data):
+        """The calculator of :meth:`todict`'s data, e.g. of a trajectory frame:
+        ``SpinLatticeCalculator.from_dict(read('md.traj').calc.parameters)``."""
+        if not isinstance(data, dict) or "terms" not in data:
+            raise ValueError("from_dict needs the dict of SpinLatticeCalculator.todict() "
+                             f"(with 'terms'), got {data!r:.80}")
+        return cls([decode_term(t) for t in data["terms"]], skin=data.get("skin", 0.3))
+
+    def get_magnetic_moment_vector(self, atoms=None):
+        """The total moment Σ_i μ_i s_i (μB), shape (3,); ``get_magnetic_moment``
+        gives its length."""
+        self.get_property("magmom", atoms)
+        return self.results["magmom_vector"].copy()
+
+    def publish(self, atoms, results):
+        """Take ``results`` as computed for ``atoms`` as they are now (what an
+        integrator does before a frame is written; see
+        :meth:`~ase_spin.md.base.SpinLatticeDynamics.publish_results`)."""
+        self.results = dict(results)
+        self.atoms = atoms.copy()
+        self._fingerprint = self.hamiltonian.fingerprint()
 
     def get_magnetic_forces(self, atoms=None):
         """B_i = −∂E/∂s_i (eV), shape (N, 3)."""
@@ -80,12 +127,14 @@ class SpinLatticeCalculator(Calculator):
             ev = self.evaluator = self.hamiltonian.bind(
                 atoms.numbers, atoms.cell.array, atoms.pbc, mu)
             self._numbers = atoms.numbers.copy()
+            _warn_no_moments(self.hamiltonian, mu)
         else:
             if not (np.array_equal(ev.cell, atoms.cell.array)
                     and np.array_equal(ev.pbc, atoms.pbc)):
                 ev.set_cell(atoms.cell.array, atoms.pbc)
             if not np.array_equal(ev.moments, mu):
                 ev.set_moments(mu)
+                _warn_no_moments(self.hamiltonian, mu)
         return ev, moments
 
     def calculate(self, atoms=None, properties=("energy",), system_changes=all_changes):
@@ -131,3 +180,7 @@ class SpinLatticeCalculator(Calculator):
             self.results["stress"] = res.virial / atoms.get_volume()
         if "magmoms" in properties:
             self.results["magmoms"] = moments.copy()
+        if "magmom" in properties:
+            total = moments.sum(axis=0)
+            self.results["magmom"] = float(np.sqrt(total @ total))
+            self.results["magmom_vector"] = total

@@ -21,8 +21,9 @@ import numpy as np
 
 from .neighbors import NeighborCache
 from .threads import threads_for
+from .terms.ase_calculator import CalculatorTerm, is_ase_calculator
 from .terms.base import Species, System, Term, parameter_generation
-from .validate import real_scalar
+from .validate import real_scalar, robust_norm
 
 __all__ = ["Hamiltonian", "Evaluator", "Want", "Evaluation", "AtomsTooCloseError"]
 
@@ -57,16 +58,22 @@ class Evaluation:
 class Hamiltonian:
     """A sum of terms, e.g. ``Hamiltonian([LennardJones(...), Exchange(...)])``.
 
+    An ASE calculator among the terms (``[EMT(), Exchange(...)]``) is wrapped
+    as :class:`~ase_spin.terms.ase_calculator.CalculatorTerm`, the lattice part.
+
     ``skin`` (Å) is the Verlet skin of the neighbour lists its evaluators keep.
     """
 
     def __init__(self, terms, skin=0.3):
-        if isinstance(terms, Term):
+        if isinstance(terms, Term) or is_ase_calculator(terms):
             terms = [terms]
-        terms = tuple(terms)
+        # an ASE calculator (EMT(), ...) is the lattice term CalculatorTerm(calc)
+        terms = tuple(CalculatorTerm(t) if not isinstance(t, Term) and is_ase_calculator(t)
+                      else t for t in terms)
         for t in terms:
             if not isinstance(t, Term):
-                raise TypeError(f"Hamiltonian terms must be ase_spin Term objects, got {t!r}")
+                raise TypeError(f"Hamiltonian terms must be ase_spin Term objects or ASE "
+                                f"calculators, got {t!r:.80}")
         if not terms:
             raise ValueError("a Hamiltonian needs at least one term")
         skin = real_scalar(skin, "skin")
@@ -184,8 +191,10 @@ class Evaluator:
 
     # -- system state -----------------------------------------------------
     def set_cell(self, cell, pbc, bind=True):
-        self.cell = np.array(cell, dtype=float).reshape(3, 3)
-        self.pbc = np.array(pbc, dtype=bool).reshape(3) if np.ndim(pbc) else np.array([pbc] * 3)
+        cell = np.array(cell, dtype=float).reshape(3, 3)
+        pbc = np.array(pbc, dtype=bool).reshape(3) if np.ndim(pbc) else np.array([pbc] * 3)
+        _check_periodic_cell(cell, pbc)
+        self.cell, self.pbc = cell, pbc
         if self.neighbors is not None:
             self.neighbors.invalidate()
         self._changes += 1
@@ -321,6 +330,33 @@ class Evaluator:
 
 _NO_ARRAY = np.zeros((0, 3))
 _NO_ENERGIES = np.zeros(0)
+
+
+def _check_periodic_cell(cell, pbc):
+    """A periodic direction needs its cell vector: non-zero, and independent of
+    the other periodic ones, |det(v̂_a v̂_bᵀ)|^½ > 1e-10 for the unit periodic
+    vectors (else ValueError naming them)."""
+    if not pbc.any():
+        return
+    axes = np.flatnonzero(pbc)
+    vectors = cell[axes]
+    if not np.isfinite(vectors).all():
+        return  # the neighbour search names non-finite cells
+    lengths = robust_norm(vectors)
+    # the volume (area, length) they span relative to the product of their
+    # lengths: the sine of the angles, scale-free (a 1e8 Å vector is fine)
+    if (lengths > 0.0).all():
+        unit = vectors / lengths[:, None]
+        spanned = np.sqrt(max(np.linalg.det(unit @ unit.T), 0.0))
+    else:
+        spanned = 0.0
+    if not spanned > 1e-10:
+        names = "".join("abc"[a] for a in axes)
+        raise ValueError(
+            f"the atoms are periodic along {names} (pbc={pbc.tolist()}) but the cell "
+            f"vectors {names} are {'zero' if not vectors.any() else 'degenerate'} "
+            f"(cell={cell.tolist()}): set a cell (atoms.cell = ..., e.g. from "
+            "ase.build) or make those directions non-periodic (atoms.pbc = False)")
 
 
 def _as_positions(positions, n):

@@ -392,15 +392,28 @@ class NeighborCache:
         # vesin's own sort orders by i only; rows are sorted here (by j too)
         # One vesin thread: its OpenMP workers would otherwise spin after each
         # build and steal the cores from the numba kernels that follow.
-        self._vesin = vesin.NeighborList(
-            cutoff=self.cutoff + self.skin, full_list=True, sorted=False, n_threads=1
-        )
+        self._vesin = self._new_vesin()
         self._reference = None
         self._cell = None
         self._pbc = None
         self._sublists = {}
         self.builds = 0
         self.pairs = None
+
+    def _new_vesin(self):
+        return vesin.NeighborList(
+            cutoff=self.cutoff + self.skin, full_list=True, sorted=False, n_threads=1
+        )
+
+    def __getstate__(self):
+        # vesin's handle holds ctypes pointers: not copied, made anew
+        state = dict(self.__dict__)
+        del state["_vesin"]
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._vesin = self._new_vesin()
 
     def invalidate(self):
         self._reference = None

@@ -10,9 +10,10 @@ positions, cell, spins and the term's own directions (field, axes).
 
 import numpy as np
 import pytest
+from ase.calculators import lj as ase_lj
 from scipy.spatial.transform import Rotation
 
-from ase_spin import (DMI, BetheSlater, BiquadraticExchange, Cubic, Exchange, Hamiltonian, LennardJones,
+from ase_spin import (DMI, BetheSlater, BiquadraticExchange, CalculatorTerm, Cubic, Exchange, Hamiltonian, LennardJones,
                       SpinLatticeCalculator, UniaxialAnisotropy, Want, Zeeman, set_spins,
                       CubicAnisotropy, Tabulated)
 
@@ -52,6 +53,9 @@ TERMS = [
     ("uniaxial", lambda R=np.eye(3): UniaxialAnisotropy(0.013, R @ [0.2, 0.5, -1.0])),
     ("easy-plane", lambda R=np.eye(3): UniaxialAnisotropy(-0.02, R @ [0.0, 0.0, 1.0])),
     ("cubic", lambda R=np.eye(3): CubicAnisotropy(0.011, -0.03, np.eye(3) @ R.T)),
+    # an ASE calculator as the lattice term (ASE's own LJ: continuous energy at rc)
+    ("ase-calculator", _isotropic(lambda: CalculatorTerm(
+        ase_lj.LennardJones(sigma=CO_LJ["sigma"], epsilon=CO_LJ["epsilon"], rc=CO_LJ["rc"])))),
     ("cubic-skew", lambda R=np.eye(3): CubicAnisotropy(
         -0.02, 0.005, np.array([[1.0, 1.0, 0.0], [-1.0, 1.0, 0.3], [0.1, 0.0, 1.0]]) @ R.T)),
     ("dmi", lambda R=np.eye(3): DMI(0.004, R @ [0.3, -0.5, 1.0], rc=3.9)),

@@ -14,6 +14,7 @@ per-run buffers to the state.
 from __future__ import annotations
 
 import copy
+import warnings
 
 import numpy as np
 from ase import units
@@ -33,10 +34,22 @@ from . import kernels
 from .compositions import composition_coefficients
 from .logger import SpinMDLogger
 
-__all__ = ["SpinLatticeDynamics", "IntegrationError", "SpinConvergenceError",
+__all__ = ["SpinLatticeDynamics", "TimestepWarning", "IntegrationError", "SpinConvergenceError",
            "UnstableStepError", "HBAR"]
 
 _FORCES = Want(forces=True)
+
+
+#: Largest phase (rad) the fastest precession or vibration may turn per step
+#: without a warning (about 20 steps per period, the usual MD rule).
+MAX_PHASE = 0.3
+#: Smallest plausible timestep (fs) without a warning.
+MIN_TIMESTEP_FS = 1e-3
+
+
+class TimestepWarning(UserWarning):
+    """The timestep is implausible for the system (too large for its fastest
+    precession or vibration, or absurdly small)."""
 
 
 class IntegrationError(RuntimeError):
@@ -141,6 +154,36 @@ class SpinLatticeDynamics(MolecularDynamics):
         self.total_iterations = 0
         self.total_steps = 0
         self._state = None
+        # time = t0 + (nsteps - n0)·dt0: exact nsteps·dt until dt is changed
+        self._clock = (0.0, 0, self.dt)
+        self._checked_dt = None
+
+    def get_time(self):
+        """Simulated time (ASE units), accumulated step by step: changing
+        ``dyn.dt`` between runs keeps the time of the steps already taken."""
+        t0, n0, dt0 = self._clock
+        return t0 + (self.nsteps - n0) * dt0
+
+    def _rebase_clock(self):
+        t0, n0, dt0 = self._clock
+        if self.dt != dt0:
+            dt = real_scalar(self.dt, "timestep (dyn.dt)")
+            if dt == 0.0:
+                raise ValueError("timestep (dyn.dt) must be non-zero")
+            self._clock = (self.get_time(), self.nsteps, dt)
+
+    def __getstate__(self):
+        """Pickle and deepcopy: everything but the closing of files (the log
+        line reopens its file, appending; see SpinMDLogger)."""
+        state = dict(self.__dict__)
+        state.pop("_exitstack", None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        for function, *_ in self.observers:
+            if isinstance(function, SpinMDLogger):
+                self.closelater(function)
 
     def todict(self):
         return {**super().todict(), "order": self.order, "precession": self.precession,
@@ -169,11 +212,20 @@ class SpinLatticeDynamics(MolecularDynamics):
         q = real_array(atoms.positions, "positions").copy()
         st = State(q=q, p=momenta, s=np.ascontiguousarray(spins), mu=mu,
                    rate=self._precession_rates(mu), scales={}, EL=None,
-                   EL_terms=None, observables=None,
+                   EL_terms=None, VL=None, observables=None,
                    # rounding errors of the last updates (compensated summation)
                    carry_q=np.zeros_like(q), carry_p=np.zeros_like(q),
                    carry_s=np.zeros_like(q), carry_mid=np.zeros_like(q))
-        st.FL = np.zeros_like(q) if self.frozen else ev.lattice(q, _FORCES).forces
+        if self.frozen:
+            st.FL = np.zeros_like(q)
+        else:  # with energy (and virial) if a log line (a frame) is written now
+            frame = self._frame_due(self.nsteps)
+            res = ev.lattice(q, Want(forces=True, energy=self._observer_due(self.nsteps),
+                                     virial=frame and self._stress_available()))
+            st.FL, st.EL, st.EL_terms, st.VL = (res.forces, res.energy,
+                                                res.energy_terms, res.virial)
+        if self._checked_dt != self.dt:
+            self._check_timestep(q, spins, mu, masses, st.FL)
         st.ops = ev.spin_operators(q, half=self.half_lists) if self.magnetic else None
         self._prepare(st)
         self._state = st
@@ -181,6 +233,43 @@ class SpinLatticeDynamics(MolecularDynamics):
 
     def _prepare(self, state):
         """Add an integrator's own per-run fields to a fresh state."""
+
+    def _check_timestep(self, q, spins, mu, masses, forces):
+        r"""Warn when the timestep h is implausible for this system, with its value
+        in fs: h·ω > :data:`MAX_PHASE` for the fastest spin precession,
+        ω_s = max_i r_i |B_i|/ħ (r_i the precession rate factor), or for the
+        fastest vibration, ω_v² ≈ max_i |ΔF_i|/(m_i |δ_i|) from one lattice
+        evaluation at positions displaced by δ (|δ_i| = 10⁻³ Å, random
+        directions); or |h| below :data:`MIN_TIMESTEP_FS` fs (a unit slip)."""
+        self._checked_dt = self.dt
+        h = abs(self.dt)
+        ev = self.ev
+        problems = []
+        if h < MIN_TIMESTEP_FS * units.fs:
+            problems.append(f"it is below {MIN_TIMESTEP_FS} fs")
+        if self.magnetic:
+            B = ev.spin(ev.spin_operators(q), spins, Want(magnetic_forces=True)).magnetic_forces
+            omega = float(np.max(self._precession_rates(mu) * np.linalg.norm(B, axis=1)))
+            omega /= self.hbar
+            if h * omega > MAX_PHASE:
+                problems.append(f"the fastest spin precesses by {h * omega:.2g} rad per step "
+                                f"(period {2 * np.pi / omega / units.fs:.3g} fs)")
+        if not self.frozen and len(q) > 1:
+            rng = np.random.default_rng(0)
+            d = rng.normal(size=q.shape)
+            d *= 1e-3 / np.linalg.norm(d, axis=1)[:, None]
+            dF = ev.lattice(q + d, _FORCES).forces - forces
+            k = np.linalg.norm(dF, axis=1) / 1e-3
+            omega = float(np.sqrt(np.max(k / masses)))
+            if h * omega > MAX_PHASE:
+                problems.append(f"the fastest vibration turns by {h * omega:.2g} rad per step "
+                                f"(period ≈ {2 * np.pi / omega / units.fs:.3g} fs)")
+        if problems:
+            warnings.warn(
+                f"timestep {self.dt / units.fs:.4g} fs ({self.dt:.4g} ASE time units; "
+                f"1 fs = ase.units.fs = {units.fs:.4g}): {'; '.join(problems)}. Timesteps "
+                f"are in ASE units: write e.g. timestep=0.1 * ase.units.fs. Keep h·ω below "
+                f"{MAX_PHASE} rad for accurate dynamics.", TimestepWarning, stacklevel=4)
 
     def _precession_rates(self, mu):
         """Per-spin factor r_i of the precession, ds_i/dt = r_i (σ/ħ) s_i × B_i:
@@ -288,10 +377,13 @@ class SpinLatticeDynamics(MolecularDynamics):
         return super().run(steps)
 
     def _step(self, count=False):
+        self._rebase_clock()
         st = self._sync()
         before = self._written
         nsteps = self.nsteps
         want_energy = self._observer_due(self.nsteps + 1)
+        # a frame to write after this step: the lattice call gives the virial too
+        self._frame_virial = self._frame_due(self.nsteps + 1) and self._stress_available()
         iterations = geometries = 0
         try:
             last = len(self.gammas) - 1
@@ -343,11 +435,21 @@ class SpinLatticeDynamics(MolecularDynamics):
         st.observables = None
         self._remember_written()
 
-    def _observer_due(self, n):
-        for _, interval, _, _ in self.observers:
+    def _observer_due(self, n, frames_only=False):
+        for function, interval, _, _ in self.observers:
+            if frames_only and isinstance(function, SpinMDLogger):
+                continue  # the log line reads the state, not the calculator
             if (interval > 0 and n % interval == 0) or (interval <= 0 and n == -interval):
                 return True
         return False
+
+    def _frame_due(self, n):
+        """An observer other than the log line (a trajectory, a user's function
+        that may write the Atoms) runs after step n."""
+        return self._observer_due(n, frames_only=True)
+
+    def _stress_available(self):
+        return self.atoms.cell.rank == 3
 
     def _substep(self, h, stage, want_energy):
         """One second-order step of size h on ``self._state``; returns (midpoint
@@ -373,10 +475,12 @@ class SpinLatticeDynamics(MolecularDynamics):
     def _lattice_at(self, q, want_energy):
         """The one lattice evaluation of a step: F_L(q̃) (and E_L if logged)."""
         st = self._state
-        res = self.ev.lattice(q, Want(forces=True, energy=want_energy))
+        virial = want_energy and getattr(self, "_frame_virial", False)
+        res = self.ev.lattice(q, Want(forces=True, energy=want_energy, virial=virial))
         st.FL = res.forces
         st.EL = res.energy if want_energy else None
         st.EL_terms = res.energy_terms if want_energy else None
+        st.VL = res.virial if virial else None
 
     def _spin_forces(self, operators, W, FL):
         """F_L + the spin terms' lattice forces at spins W, from prepared
@@ -527,6 +631,80 @@ class SpinLatticeDynamics(MolecularDynamics):
             dof -= c.get_removed_dof(self.atoms)
         return 2.0 * self.get_kinetic_energy() / (max(dof, 1) * units.kB)
 
+    # -- the calculator's results for observers (trajectory frames) -------------
+
+    def call_observers(self):
+        """ASE's, with the calculator's results for the current state published
+        first (:meth:`publish_results`) when an observer other than the log line
+        is due: trajectory frames (and a user's ``ase.io.write`` in an observer)
+        then hold energy, forces, stress, magnetic forces; on the other steps
+        nothing is computed."""
+        if self._frame_due(self.nsteps):
+            self.publish_results()
+        super().call_observers()
+
+    def publish_results(self):
+        """Put the results of the current state into ``atoms.calc`` as if it had
+        computed them: ``energy``, ``free_energy``, ``forces`` (the Hamiltonian's,
+        before constraints, as any calculator gives them), ``stress`` (a cell
+        with three vectors), ``magmoms`` (N, 3), ``magmom`` (|Σ μ_i s_i|),
+        ``magnetic_forces`` B = −∂E/∂s (eV), ``magnetic_energy`` and
+        ``energy_terms``. From what the step already computed (the lattice part
+        once per step) plus one pass over the spin terms; ``atoms.get_forces()``
+        etc. then cost nothing until the Atoms change."""
+        st = self._sync()
+        with threads.threads_for(len(self.atoms)):
+            results = self._frame_results(st)
+        self._calc.publish(self.atoms, results)
+
+    def _frame_results(self, st):
+        ev = self.ev
+        obs = self._observables()
+        stress = self._stress_available()
+        F = (ev.lattice(st.q, _FORCES).forces if self.frozen else st.FL).copy()
+        V = np.zeros(6)
+        if self.magnetic:
+            # operators able to give the virial when it is wanted (those of
+            # the step need not be)
+            ops = ev.spin_operators(st.q, virial=True, half=True) if stress else st.ops
+            res = ev.spin(ops, st.s, Want(forces=True, virial=stress), forces=F)
+            if stress:
+                V += res.virial
+        if stress:
+            VL = st.VL
+            if VL is None:
+                VL = ev.lattice(st.q, Want(virial=True)).virial
+            V += VL
+        terms = dict(obs["terms"])
+        energy = float(sum(terms.values()))
+        moments = st.mu[:, None] * st.s
+        results = {"energy": energy, "free_energy": energy, "forces": F,
+                   "magnetic_forces": obs["B"].copy(), "energy_terms": terms,
+                   "magnetic_energy": float(sum(terms[k] for k in
+                                                ev.hamiltonian.spin_term_names)),
+                   "magmoms": moments}
+        results.update(_total_moment(moments))
+        if stress:
+            results["stress"] = V / abs(np.linalg.det(self.atoms.cell.array))
+        return results
+
+    def _traj_write_image(self, description):
+        """ASE's trajectory writer, with what a .traj frame has no field for in
+        the frame's ``info``: ``magnetic_forces`` (N, 3), ``magnetic_energy``,
+        ``energy_terms`` (the user's Atoms keep their own info)."""
+        calc = self._calc
+        current = not calc.check_state(self.atoms)
+        info = self.atoms.info
+        saved = dict(info)
+        for key in ("magnetic_forces", "magnetic_energy", "energy_terms"):
+            if current and key in calc.results:
+                info[key] = calc.results[key]
+        try:
+            super()._traj_write_image(description)
+        finally:
+            info.clear()
+            info.update(saved)
+
     @property
     def mean_iterations(self):
         """Midpoint sweeps per step, averaged over the steps taken so far."""
@@ -541,6 +719,13 @@ class SpinLatticeDynamics(MolecularDynamics):
 
 def _copy(a):
     return None if a is None else a.copy()
+
+
+def _total_moment(moments):
+    """ASE's scalar ``magmom`` for vector moments: |Σ_i μ_i s_i| (μB), and the
+    vector itself as ``magmom_vector``."""
+    total = moments.sum(axis=0)
+    return {"magmom": float(np.sqrt(total @ total)), "magmom_vector": total}
 
 
 def _write(arrays, name, values):

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import sys
+import warnings
 import weakref
 
 from ase import units
@@ -24,17 +27,51 @@ class SpinMDLogger(IOContext):
     """
 
     def __init__(self, dyn, logfile, header=True, mode="a", comm=world):
-        self.dyn = weakref.proxy(dyn)
+        self._dyn = weakref.ref(dyn)
+        self.comm = comm
         self.logfile = self.openfile(file=logfile, mode=mode, comm=comm)
         n = len(dyn.atoms)
         digits = 4 if n <= 100 else 3 if n <= 1000 else 2 if n <= 10000 else 1
-        self.hdr = "%-10s %13s %13s %13s %13s %8s %8s %9s %5s" % (
+        self.hdr = "%-12s %13s %13s %13s %13s %8s %8s %9s %5s" % (
             "Time[ps]", "Etot[eV]", "Epot[eV]", "Ekin[eV]", "Emag[eV]", "T[K]",
             "|M|", "Ts[K]", "iter")
         e = f"%13.{digits}f"
-        self.fmt = f"%-10.4f {e} {e} {e} {e} %8.1f %8.5f %9.1f %5d\n"
+        self.fmt = f"%-12.7f {e} {e} {e} {e} %8.1f %8.5f %9.1f %5d\n"
         if header:
             self.logfile.write(self.hdr + "\n")
+
+    @property
+    def dyn(self):
+        return self._dyn()
+
+    def __getstate__(self):
+        """A copy (pickle, deepcopy) appends to the same file (a restart
+        continues the log); a log written to a stream that is not a named file
+        (a StringIO, a pipe) goes nowhere in the copy, with a warning."""
+        state = {k: v for k, v in self.__dict__.items()
+                 if k not in ("logfile", "_exitstack", "_dyn", "comm")}
+        state["dyn"] = self._dyn()
+        fd = self.logfile
+        name = getattr(fd, "name", None)
+        if fd is sys.stdout:
+            state["file"] = "-"
+        elif isinstance(name, str) and os.path.isfile(name):
+            fd.flush()
+            state["file"] = os.path.abspath(name)
+        else:
+            warnings.warn(f"the copy of the log line writing to {fd!r:.60} goes to "
+                          "os.devnull: only a named file or '-' can be reopened",
+                          stacklevel=2)
+            state["file"] = None
+        return state
+
+    def __setstate__(self, state):
+        dyn = state.pop("dyn")
+        file = state.pop("file")
+        self.__dict__.update(state)
+        self._dyn = weakref.ref(dyn)
+        self.comm = world
+        self.logfile = self.openfile(file=file, mode="a", comm=world)
 
     def __call__(self):
         dyn = self.dyn

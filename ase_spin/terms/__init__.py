@@ -1,6 +1,7 @@
 """Hamiltonian terms: each states its energy and computes, over a pair list,
 energy, forces, magnetic forces (spin terms) and virial."""
 
+from .ase_calculator import CalculatorTerm
 from .anisotropy import CubicAnisotropy, UniaxialAnisotropy
 from .biquadratic import BiquadraticExchange
 from .dmi import DMI
@@ -10,7 +11,7 @@ from .lennard_jones import LennardJones
 from .tabulated import ShellExchange, Tabulated
 from .zeeman import Zeeman
 
-__all__ = ["Term", "SpinTerm", "SingleSiteTerm", "SpinOperator", "LennardJones", "Exchange",
+__all__ = ["CalculatorTerm", "Term", "SpinTerm", "SingleSiteTerm", "SpinOperator", "LennardJones", "Exchange",
            "Coupling", "BetheSlater", "Cubic", "ExchangeOperator", "Zeeman",
            "UniaxialAnisotropy", "CubicAnisotropy", "DMI",
            "BiquadraticExchange", "Tabulated", "ShellExchange"]
