@@ -136,6 +136,11 @@ def _threads_setting(value):
     return value
 
 
+#: A losing probe step is followed by at least this many times its own
+#: duration before the next probe: probing costs at most ~1/PROBE_BUDGET.
+PROBE_BUDGET = 20.0
+
+
 class AdaptiveThreads:
     """The number of threads for the steps of a run, chosen by timing them.
 
@@ -144,7 +149,8 @@ class AdaptiveThreads:
     one, whichever made the last measured step faster. The current choice is
     timed at every step, so a core taken by another process shows at once; the
     other choice is timed again once per ``probe`` seconds of wall time (the
-    interval doubles, up to 64 s, while it keeps losing). A busy machine thus
+    interval doubles, up to 64 s, while it keeps losing, and is at least
+    :data:`PROBE_BUDGET` times the losing step's own time). A busy machine thus
     costs at most about what it costs a single-threaded code, and an idle one
     keeps the threads. A whole number fixes the count. Results are the same
     bit for bit whatever is chosen (see the module's docstring).
@@ -180,7 +186,6 @@ class AdaptiveThreads:
         best = self._best()
         now = time.perf_counter()
         if now >= self._next_probe:
-            self._next_probe = now + self._interval
             self._probing = True
             return 1 if best == self.most else self.most
         return best
@@ -191,10 +196,18 @@ class AdaptiveThreads:
             return
         before = self._best()
         self.time[n] = elapsed
-        if self._probing and before is not None:
-            # a probe that lost again: probe less often; one that won: often again
-            lost = self._best() == before
-            self._interval = min(64.0, 2.0 * self._interval) if lost else self._probe
+        best = self._best()
+        if best is None or n == best:
+            if self._probing and before is not None:  # a probe that won: probe often again
+                self._interval = self._probe
+            return
+        if self._probing:  # a probe that lost again: probe less often
+            self._interval = min(64.0, 2.0 * self._interval)
+        # a losing step may cost many good ones (a descheduled thread holds a
+        # barrier for a time slice): keep such probes under 1/PROBE_BUDGET of
+        # the wall time
+        self._next_probe = max(self._next_probe, time.perf_counter() + self._interval,
+                               time.perf_counter() + PROBE_BUDGET * elapsed)
 
     @contextmanager
     def step(self, natoms):

@@ -7,7 +7,9 @@ CPU-bound competing processes.
 fcc Co (peers.md scene, N = 4n³), CollectivePRK order 2 at 0.1 fs. Each
 condition starts ``--competitors`` processes spinning on the CPU for the
 duration of its measurements. Prints µs per atom-step (median of --repeats
-runs of --steps steps, all settings interleaved) and the machine.
+runs of --steps steps; each setting's runs one after the other, as a user's
+run would go, so that the adaptive choice is timed over a continuous stretch
+rather than right after another setting's slow steps) and the machine.
 """
 
 from __future__ import annotations
@@ -51,15 +53,15 @@ def measure(n, steps, repeats, with_lammps):
         lmp.run(0)
     natoms = 4 * n**3
     times = {label: [] for label in [*settings, *(["LAMMPS"] if lmp else [])]}
-    for _ in range(repeats):
-        for label, dyn in dyns.items():
+    for label, dyn in dyns.items():
+        for _ in range(repeats):
             t0 = time.perf_counter()
             dyn.run(steps)
             times[label].append((time.perf_counter() - t0) / steps / natoms * 1e6)
-        if lmp:
-            t0 = time.perf_counter()
-            lmp.run(steps)
-            times["LAMMPS"].append((time.perf_counter() - t0) / steps / natoms * 1e6)
+    for _ in range(repeats if lmp else 0):
+        t0 = time.perf_counter()
+        lmp.run(steps)
+        times["LAMMPS"].append((time.perf_counter() - t0) / steps / natoms * 1e6)
     if lmp:
         lmp.close()
     return {label: float(np.median(v)) for label, v in times.items()}
