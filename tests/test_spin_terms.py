@@ -145,9 +145,10 @@ def test_exchange_zeeman_anisotropies_converge_to_ode_solution(integrator, order
 
 def test_splitting_drops_to_first_order_with_cubic_anisotropy():
     """The sequential sweeps rotate spin i about B_i(s_i) taken at the start of
-    its rotation. Exact for exchange, a field and uniaxial anisotropy (the
-    rotation keeps s·n), it is only a first-order step when the field depends
-    on s_i otherwise (cubic anisotropy), and the forward–backward sweep is no
+    its rotation. Exact for exchange, a field and a uniaxial anisotropy along
+    it (the rotation keeps s·n), it is only a first-order step when the field
+    depends on s_i otherwise (cubic anisotropy; a field and an easy axis along
+    different axes, docs/benchmarks.md), and the forward–backward sweep is no
     longer symmetric: LAMMPS's fix nve/spin (which SuzukiTrotter follows step
     for step, tests/test_lammps.py) converges at first order there. The
     collective step stays second order on the same scene."""
