@@ -9,10 +9,11 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from ..neighbors import balanced_chunks
+from ..neighbors import balanced_chunks, reduce_threads
 from ..validate import real_scalar
 
-__all__ = ["Term", "SpinTerm", "SpinOperator", "System", "Parameterised", "PairParameters",
+__all__ = ["Term", "SpinTerm", "SpinOperator", "PairSpinTerm", "PairOperator", "System",
+           "Parameterised", "PairParameters",
            "Species", "pair_key", "resolve_pairs", "pair_values", "parameter_generation"]
 
 _versions = itertools.count(1)
@@ -449,7 +450,7 @@ def _pair_pass(nthreads, row, nbr, half, s, data, B, F, energies, want_b, want_f
     nb_ = n if scatter else 0
     bbuf = np.zeros((nthreads, nb_ if want_b else 0, 3))
     fbuf = np.zeros((nthreads, nb_ if want_f else 0, 3))
-    ebuf = np.zeros((nthreads, nb_ if want_energies else 0))
+    ebuf = np.zeros((nthreads, nb_ if want_energies else 0, 1))
     acc = np.zeros((nthreads, 7))
     need_e = want_f or want_energy or want_energies or want_virial
     w = 1.0 if half else 0.5
@@ -490,7 +491,7 @@ def _pair_pass(nthreads, row, nbr, half, s, data, B, F, energies, want_b, want_f
                             fbuf[t, j, 1] += gy
                             fbuf[t, j, 2] += gz
                         if want_energies:
-                            ebuf[t, j] += 0.5 * e
+                            ebuf[t, j, 0] += 0.5 * e
                     if want_virial:
                         v[1] -= w * gx * dx
                         v[2] -= w * gy * dy
@@ -508,7 +509,7 @@ def _pair_pass(nthreads, row, nbr, half, s, data, B, F, energies, want_b, want_f
                     fbuf[t, i, 1] += fy
                     fbuf[t, i, 2] += fz
                 if want_energies:
-                    ebuf[t, i] += ei
+                    ebuf[t, i, 0] += ei
             else:  # row i belongs to this thread alone
                 if want_b:
                     B[i, 0] += bx
@@ -523,16 +524,9 @@ def _pair_pass(nthreads, row, nbr, half, s, data, B, F, energies, want_b, want_f
         for c in range(7):
             acc[t, c] = v[c]
     if scatter:
-        for i in nb.prange(n):
-            for t in range(nthreads):
-                if want_b:
-                    for c in range(3):
-                        B[i, c] += bbuf[t, i, c]
-                if want_f:
-                    for c in range(3):
-                        F[i, c] += fbuf[t, i, c]
-                if want_energies:
-                    energies[i] += ebuf[t, i]
+        reduce_threads(bbuf, B)
+        reduce_threads(fbuf, F)
+        reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
     return acc.sum(axis=0)
 
 
@@ -561,6 +555,34 @@ def _compile_with(skeleton, functions, name, parallel=False):
     if parallel:
         return nb.njit(cache=True, parallel=True, error_model="numpy")(fn)
     return nb.njit(cache=True)(fn)
+
+
+class PairSpinTerm(SpinTerm):
+    """A spin term that is a sum over pairs, built on :func:`_pair_pass`.
+
+    A subclass sets ``pair_field`` and ``pair_energy`` (compiled functions, see
+    :func:`compile_pair_pass`) and ``pair_site`` (``f(i, s, (row, nbr,
+    *data))``: spin i's field for the sequential sweeps), and implements
+    :meth:`prepare` filling its per-pair data and returning
+    :meth:`operator`. The passes over half or full pair lists follow.
+    """
+
+    neighbor_list = "half"
+    pair_field = None
+    pair_energy = None
+    pair_site = None
+
+    @classmethod
+    def _compiled_pass(cls):
+        if "_pair_pass" not in cls.__dict__:
+            cls._pair_pass = compile_pair_pass(cls.pair_field, cls.pair_energy, cls.__name__)
+        return cls._pair_pass
+
+    def operator(self, pairs, data, mean_data):
+        """The :class:`PairOperator` of per-pair ``data`` (and its midpoint
+        version ``mean_data``, or None) on ``pairs``."""
+        return PairOperator(pairs, data, mean_data, self._compiled_pass(),
+                            type(self).pair_site)
 
 
 class PairOperator(SpinOperator):

@@ -6,7 +6,7 @@ import numba as nb
 import numpy as np
 
 from ..validate import flag
-from .base import PairOperator, SpinTerm, compile_pair_pass
+from .base import PairSpinTerm
 from .exchange import Exchange
 
 __all__ = ["BiquadraticExchange"]
@@ -57,7 +57,7 @@ def _site(i, s, data):
     return bx, by, bz
 
 
-class BiquadraticExchange(SpinTerm):
+class BiquadraticExchange(PairSpinTerm):
     r"""Bilinear and biquadratic exchange (LAMMPS ``pair_style
     spin/exchange/biquadratic``):
 
@@ -84,6 +84,7 @@ class BiquadraticExchange(SpinTerm):
     """
 
     name = "biquadratic_exchange"
+    pair_field, pair_energy, pair_site = _field, _energy, _site
 
     _parameters = {"J": "J", "K": "K", "rc": "rc", "offset": "offset"}
 
@@ -127,12 +128,6 @@ class BiquadraticExchange(SpinTerm):
                            + (" offset yes" if self.offset else "")))
         return [LammpsPair("spin/exchange/biquadratic", _f(self.rc), coeffs)]
 
-    @classmethod
-    def _compiled_pass(cls):
-        if "_pair_pass" not in cls.__dict__:
-            cls._pair_pass = compile_pair_pass(_field, _energy, cls.__name__)
-        return cls._pair_pass
-
     def _parts(self):
         """J and K each as an exchange term: their tables and pair geometry."""
         parts = self.__dict__.get("_parts_cache")
@@ -159,6 +154,6 @@ class BiquadraticExchange(SpinTerm):
         data = (opJ.J, opK.J, opJ.G, opK.G, D, c)
         mean_data = ((opJ.Jbar, opK.Jbar, opJ.G, opK.G, D, c) if opJ.Jbar is not None
                      else None)
-        op = PairOperator(pairs, data, mean_data, self._compiled_pass(), _site)
+        op = self.operator(pairs, data, mean_data)
         op.extra = (opJ, opK)
         return op

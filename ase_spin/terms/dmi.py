@@ -8,7 +8,7 @@ import numpy as np
 from ..neighbors import separation
 from ..threads import threaded
 from ..validate import length, real_scalar, unit_vector
-from .base import (PairOperator, SpinTerm, compile_pair_pass, is_pair_mapping, pair_values,
+from .base import (PairSpinTerm, is_pair_mapping, pair_values,
                    resolve_pairs)
 
 __all__ = ["DMI"]
@@ -123,7 +123,7 @@ def _pair_table(value, symbols, what):
     return table
 
 
-class DMI(SpinTerm):
+class DMI(PairSpinTerm):
     r"""The Dzyaloshinskii–Moriya interaction in LAMMPS's form (``pair_style
     spin/dmi``, after Rohart and Thiaville):
 
@@ -154,6 +154,7 @@ class DMI(SpinTerm):
     """
 
     name = "dmi"
+    pair_field, pair_energy, pair_site = _field, _energy, _site
 
     _parameters = {"D": "D", "direction": "direction", "rc": "rc"}
 
@@ -186,12 +187,6 @@ class DMI(SpinTerm):
                 strength, direction = D[a, b], types.vector(d[a, b])
             coeffs.append((i, j, f"dmi {_f(self.rc)} {_f(strength)} {_v(direction)}"))
         return [LammpsPair("spin/dmi", _f(self.rc), coeffs)]
-
-    @classmethod
-    def _compiled_pass(cls):
-        if "_pair_pass" not in cls.__dict__:
-            cls._pair_pass = compile_pair_pass(_field, _energy, cls.__name__)
-        return cls._pair_pass
 
     def bind(self, system):
         symbols = system.species.symbols
@@ -227,4 +222,4 @@ class DMI(SpinTerm):
                   U, E, R, other, Ubar if Ubar is not None else _NO_U)
         data = (U, E, R, types, Dtab)
         mean_data = (Ubar, E, R, types, Dtab) if Ubar is not None else None
-        return PairOperator(pairs, data, mean_data, self._compiled_pass(), _site)
+        return self.operator(pairs, data, mean_data)
