@@ -1,9 +1,10 @@
-"""Verlet pair lists built by vesin and kept across calls with a skin.
+"""Verlet pair lists built by a compiled cell list and kept across calls with a skin.
 
-A :class:`NeighborCache` holds one *full* pair list (each pair stored as i→j and
-j→i) at the largest cutoff any term needs plus a skin, in compressed-row form
-sorted by i. Terms ask it for sub-lists at their own cutoffs (and, for spin
-terms, restricted to magnetic atoms). Distances are never stored: kernels
+A :class:`NeighborCache` holds one *half* pair list (each pair once, in the row
+of its smaller index) at the largest cutoff any term needs plus a skin, in
+compressed-row form, rows sorted by (j, image shift). Terms ask it for sub-lists
+at their own cutoffs (and, for spin terms, restricted to magnetic atoms), half
+or full; the list at the largest cutoff is shared, not copied. Distances are never stored: kernels
 recompute d_ij = r_j + S_ij − r_i from the current positions and the pair's
 Cartesian image shift S_ij, so a list stays valid until some atom has moved more
 than half the skin from where it was when the list was built.
@@ -23,7 +24,6 @@ from __future__ import annotations
 
 import numba as nb
 import numpy as np
-import vesin
 
 from .threads import serial_twin
 
@@ -98,33 +98,6 @@ def _bucket_by_row(i, row):
     return order
 
 
-@nb.njit(cache=True, parallel=True)
-def _sort_rows(row, j, shift_int, order):
-    """Sort each row's entries by neighbour index (then image shift), in place
-    on ``order``: neighbours in memory order make the kernels' gathers of
-    positions and spins cache-friendly."""
-    n = len(row) - 1
-    for a in nb.prange(n):
-        lo = row[a]
-        hi = row[a + 1]
-        for x in range(lo + 1, hi):
-            key = order[x]
-            kj = j[key]
-            k0 = shift_int[key, 0]
-            k1 = shift_int[key, 1]
-            k2 = shift_int[key, 2]
-            y = x - 1
-            while y >= lo:
-                o = order[y]
-                oj = j[o]
-                if oj < kj or (oj == kj and (shift_int[o, 0], shift_int[o, 1],
-                                             shift_int[o, 2]) <= (k0, k1, k2)):
-                    break
-                order[y + 1] = o
-                y -= 1
-            order[y + 1] = key
-
-
 @nb.njit(cache=True, inline="always")
 def separation(pos, images, i, j, m):
     """d_ij = (r_j − r_i) + S_m and |d_ij|² for pair (i, j) with image shift m.
@@ -135,37 +108,6 @@ def separation(pos, images, i, j, m):
     dy = (pos[j, 1] - pos[i, 1]) + images[m, 1]
     dz = (pos[j, 2] - pos[i, 2]) + images[m, 2]
     return dx, dy, dz, dx * dx + dy * dy + dz * dz
-
-
-@nb.njit(cache=True, parallel=True)
-def _pair_distances(positions, row, j, image, images, out):
-    n = len(row) - 1
-    for a in nb.prange(n):
-        for k in range(row[a], row[a + 1]):
-            out[k] = np.sqrt(separation(positions, images, a, j[k], image[k])[3])
-
-
-def _image_table(s, cell):
-    """Distinct integer image shifts as a Cartesian table plus each pair's index
-    into it (a counting pass: np.unique over rows would sort every pair; it is
-    used only when the shifts span a range too wide to count, as for atoms far
-    outside a periodic cell)."""
-    if len(s) == 0:
-        return np.zeros((1, 3)), np.zeros(0, dtype=np.int16)
-    lo = s.min(axis=0)
-    span = s.max(axis=0) - lo + 1
-    if float(np.prod(span.astype(float))) <= 8.0 * len(s) + 4096:
-        key = ((s[:, 0] - lo[0]) * span[1] + (s[:, 1] - lo[1])) * span[2] + (s[:, 2] - lo[2])
-        present = np.flatnonzero(np.bincount(key, minlength=int(np.prod(span))))
-        lookup = np.zeros(int(np.prod(span)), dtype=np.int64)
-        lookup[present] = np.arange(len(present))
-        distinct = np.column_stack(np.unravel_index(present, tuple(span))) + lo
-        index = lookup[key]
-    else:
-        distinct, index = np.unique(s, axis=0, return_inverse=True)
-        index = index.reshape(-1)
-    index_type = np.int16 if len(distinct) < 32768 else np.int32
-    return np.ascontiguousarray(distinct @ cell), index.astype(index_type)
 
 
 def check_cell(cell, pbc):
@@ -207,12 +149,6 @@ def check_cell(cell, pbc):
 #: Refuse cells so small along periodic directions that each atom would see more
 #: periodic images of every other atom than this within the cutoff.
 MAX_IMAGES = 100_000
-
-# vesin's cell list (cpu_cell_list.cpp) caps its cells at 1e5 by a formula that
-# gives zero cells along a direction for very elongated boxes: it then divides by
-# zero (SIGFPE). Such boxes are searched by _sweep_pairs instead.
-_VESIN_MAX_CELLS = 1e5
-
 
 def _face_distances(cell, pbc):
     """Distances between opposite faces of the cell along periodic directions."""
@@ -257,37 +193,13 @@ def _wrap(positions, cell, pbc):
             f"atom {atom} lies {abs(frac[atom, k]):.3g} cells outside the periodic cell "
             f"along cell vector {'abc'[periodic[k]]}: its position keeps no precision for "
             f"distances at that range; wrap the atoms into the cell (atoms.wrap())")
-    # vesin itself places atoms a cell or two outside (without this copy and the
+    # the sweep takes atoms a cell or two outside as they are (without this copy and the
     # shift correction of every pair); only atoms farther out are moved here
     shift[np.abs(shift) <= 2.0] = 0.0
     if not shift.any():
         return positions, n
     n[:, periodic] = shift.astype(np.int64)
     return positions - n[:, periodic] @ cell[periodic], n
-
-
-def _vesin_can(positions, cell, pbc, cutoff):
-    """Whether vesin's cell list will have at least one cell along every
-    direction (its own formula, see _VESIN_MAX_CELLS)."""
-    d = np.empty(3)
-    faces = _face_distances(cell, pbc) if pbc.any() else None
-    for k in range(3):
-        if pbc[k]:
-            d[k] = faces[k]
-        else:
-            lo, hi = (positions[:, k].min(), positions[:, k].max()) if len(positions) else (0, 0)
-            span = hi - lo if hi - lo >= 1e-6 else 1.0
-            d[k] = max(1.0, span * 1.01)
-    if not np.isfinite(d).all():
-        return False
-    n = np.maximum(np.trunc(d / cutoff), 1.0)
-    if n.prod() > _VESIN_MAX_CELLS:
-        rxy, ryz = n[0] / n[1], n[1] / n[2]
-        n2 = np.trunc(np.cbrt(_VESIN_MAX_CELLS / (rxy * ryz * ryz)))
-        n1 = np.trunc(ryz * n2)
-        n0 = np.trunc(rxy * n1)
-        n = np.array([n0, n1, n2])
-    return bool((n >= 1).all() and (n < 2**31).all())
 
 
 @nb.njit(cache=True)
@@ -324,7 +236,8 @@ def _sweep_count_or_fill(order, x, pos, shifts, cut2, cut, i_out, j_out, m_out, 
 
 
 def _sweep_pairs(positions, cell, pbc, cutoff):
-    """Full pair list (i, j, integer shifts) for boxes vesin cannot grid."""
+    """Full pair list (i, j, integer shifts) for boxes the cell list cannot grid
+    (an extent that is not finite); the reference the tests hold it to."""
     periodic = np.flatnonzero(pbc)
     reach = np.zeros(3, dtype=np.int64)
     if periodic.size:
@@ -343,6 +256,378 @@ def _sweep_pairs(positions, cell, pbc, cutoff):
     m = np.empty(count, dtype=np.int64)
     _sweep_count_or_fill(order, x, positions, shifts, cutoff * cutoff, cutoff, i, j, m, True)
     return i, j, ints[m]
+
+
+# -- the cell-list search ------------------------------------------------------
+#
+# Pairs are searched on a grid of bins in coordinates u = r·A⁻¹ along a basis A
+# whose rows are the periodic cell vectors and, along open directions, unit
+# vectors orthogonal to them. A pair at distance |d| has |Δu_k| ≤ |d|·|b_k|
+# (b_k the k-th column of A⁻¹, |b_k| = 1/face distance), so the bins within R_k
+# of an atom's own hold all of its neighbours, whatever the cell's shape. The
+# list is written once, each pair in the row of its smaller index, in two passes
+# (count, fill): memory is the list itself (6 bytes a pair) plus a few arrays
+# per atom, never a pair list of int64 indices and shifts.
+
+#: Bins allowed, as a multiple of the atoms (a sparse system gets wider bins).
+_BINS_PER_ATOM = 2
+#: Largest dense table of image shifts (keys); beyond, shifts are collected.
+_DENSE_KEYS = 1 << 22
+
+
+def _far_error(atom, cells, k):
+    return ValueError(
+        f"atom {atom} lies {cells:.3g} cells outside the periodic cell "
+        f"along cell vector {'abc'[k]}: its position keeps no precision for "
+        f"distances at that range; wrap the atoms into the cell (atoms.wrap())")
+
+
+def _grid_plan(positions, cell, pbc, reach):
+    """Bins of every atom, its whole-cell offset n_i (u = n_i + fractional part
+    along periodic directions), bins per direction, the reach R_k in bins, and
+    the half-width L_k of the box of possible image shifts. None if the
+    extent is not finite (the sweep takes such boxes)."""
+    n = len(positions)
+    periodic = np.flatnonzero(pbc)
+    basis = np.zeros((3, 3))
+    basis[periodic] = cell[periodic]
+    open_ = np.flatnonzero(~pbc)
+    if open_.size:
+        if periodic.size:
+            q, _ = np.linalg.qr(cell[periodic].T, mode="complete")
+            basis[open_] = q[:, periodic.size:].T
+        else:
+            basis[open_] = np.eye(3)[open_]
+    inverse = np.linalg.inv(basis)
+    dual = np.sqrt((inverse**2).sum(axis=0))  # |b_k|
+    u = positions @ inverse
+    off = np.zeros((n, 3), dtype=np.int64)
+    for k in periodic:
+        f = np.floor(u[:, k])
+        far = np.abs(f) >= _MAX_CELLS_AWAY
+        if far.any():
+            atom = int(np.argmax(far))
+            raise _far_error(atom, abs(u[atom, k]), k)
+        off[:, k] = f.astype(np.int64)
+        u[:, k] -= f
+    nbins = np.ones(3, dtype=np.int64)
+    lo = np.zeros(3)
+    span = np.ones(3)
+    for k in range(3):
+        x = reach * dual[k]  # largest |Δu_k| of a pair
+        if pbc[k]:
+            nbins[k] = max(1, int(min(np.floor(1.0 / (x * (1.0 + 1e-6))), 1 << 20)))
+        else:
+            lo[k] = u[:, k].min() if n else 0.0
+            span[k] = (u[:, k].max() - lo[k]) if n else 0.0
+            if not np.isfinite(span[k]):
+                return None
+            nbins[k] = max(1, int(min(np.floor(span[k] / (x * (1.0 + 1e-6))), 1 << 20)))
+    while nbins.prod() > max(_BINS_PER_ATOM * n, 4096):
+        k = int(np.argmax(nbins))
+        nbins[k] = max(1, nbins[k] // 2)
+    reach_bins = np.zeros(3, dtype=np.int64)
+    bins = np.empty((n, 3), dtype=np.int64)
+    for k in range(3):
+        width = 1.0 / nbins[k] if pbc[k] else span[k] / nbins[k]
+        if nbins[k] == 1:
+            bins[:, k] = 0
+            reach_bins[k] = int(np.ceil(reach * dual[k] * (1.0 + 1e-9) + 1e-12)) if pbc[k] else 0
+        else:
+            bins[:, k] = np.clip(np.floor((u[:, k] - lo[k]) / width), 0, nbins[k] - 1)
+            reach_bins[k] = int(np.ceil(reach * dual[k] / width * (1.0 + 1e-9) + 1e-12))
+    del u
+    # image shifts S = s + n_i − n_j with s the wrap of the bin offset
+    half_width = np.zeros(3, dtype=np.int64)
+    for k in periodic:
+        s_lo = -((reach_bins[k] + nbins[k] - 1) // nbins[k])
+        s_hi = (nbins[k] - 1 + reach_bins[k]) // nbins[k]
+        spread = int(off[:, k].max() - off[:, k].min()) if n else 0
+        half_width[k] = max(-s_lo, s_hi) + spread
+    return bins, off, nbins, reach_bins, half_width
+
+
+@nb.njit(cache=True)
+def _bin_sort(bins, nbins):
+    """Atoms grouped by bin (a counting sort, by index within a bin): bin b holds
+    ``order[start[b]:start[b + 1]]``."""
+    n = bins.shape[0]
+    total = nbins[0] * nbins[1] * nbins[2]
+    start = np.zeros(total + 1, dtype=np.int64)
+    ids = np.empty(n, dtype=np.int64)
+    for a in range(n):
+        b = (bins[a, 0] * nbins[1] + bins[a, 1]) * nbins[2] + bins[a, 2]
+        ids[a] = b
+        start[b + 1] += 1
+    for b in range(total):
+        start[b + 1] += start[b]
+    fill = start[:-1].copy()
+    order = np.empty(n, dtype=np.int64)
+    for a in range(n):
+        order[fill[ids[a]]] = a
+        fill[ids[a]] += 1
+    return start, order
+
+
+@nb.njit(cache=True)
+def _grid_row(i, pos, cell, bins, off, start, order, psorted, osorted, nbins, rb, periodic,
+              cut2, hw, fill, k0, j_out, img_out, s_out, lookup, present):
+    """Visit atom i's neighbours j ≥ i (j = i: images with a lexicographically
+    positive shift) within sqrt(cut2): count them, mark their shifts' keys in
+    ``present`` (when not ``fill``), or write them from k0 on (j, and the image
+    index ``lookup[key]``, or the shift itself when ``lookup`` is empty)."""
+    b0 = bins[i, 0]
+    b1 = bins[i, 1]
+    b2 = bins[i, 2]
+    xi = pos[i, 0]
+    yi = pos[i, 1]
+    zi = pos[i, 2]
+    o0 = off[i, 0]
+    o1 = off[i, 1]
+    o2 = off[i, 2]
+    sp1 = 2 * hw[1] + 1
+    sp2 = 2 * hw[2] + 1
+    dense = present.shape[0] > 0 or lookup.shape[0] > 0
+    count = 0
+    for d0 in range(-rb[0], rb[0] + 1):
+        c0 = b0 + d0
+        s0 = 0
+        if periodic[0]:
+            s0 = c0 // nbins[0]
+            c0 -= s0 * nbins[0]
+        elif c0 < 0 or c0 >= nbins[0]:
+            continue
+        for d1 in range(-rb[1], rb[1] + 1):
+            c1 = b1 + d1
+            s1 = 0
+            if periodic[1]:
+                s1 = c1 // nbins[1]
+                c1 -= s1 * nbins[1]
+            elif c1 < 0 or c1 >= nbins[1]:
+                continue
+            for d2 in range(-rb[2], rb[2] + 1):
+                c2 = b2 + d2
+                s2 = 0
+                if periodic[2]:
+                    s2 = c2 // nbins[2]
+                    c2 -= s2 * nbins[2]
+                elif c2 < 0 or c2 >= nbins[2]:
+                    continue
+                b = (c0 * nbins[1] + c1) * nbins[2] + c2
+                for t in range(start[b], start[b + 1]):
+                    j = order[t]
+                    if j < i:
+                        continue
+                    S0 = s0 + o0 - osorted[t, 0]
+                    S1 = s1 + o1 - osorted[t, 1]
+                    S2 = s2 + o2 - osorted[t, 2]
+                    if j == i and not (S0 > 0 or (S0 == 0 and (S1 > 0 or (S1 == 0
+                                                                           and S2 > 0)))):
+                        continue
+                    tx = S0 * cell[0, 0] + S1 * cell[1, 0] + S2 * cell[2, 0]
+                    ty = S0 * cell[0, 1] + S1 * cell[1, 1] + S2 * cell[2, 1]
+                    tz = S0 * cell[0, 2] + S1 * cell[1, 2] + S2 * cell[2, 2]
+                    dx = (psorted[t, 0] - xi) + tx
+                    dy = (psorted[t, 1] - yi) + ty
+                    dz = (psorted[t, 2] - zi) + tz
+                    if not dx * dx + dy * dy + dz * dz < cut2:
+                        continue
+                    key = ((S0 + hw[0]) * sp1 + (S1 + hw[1])) * sp2 + (S2 + hw[2])
+                    if fill:
+                        j_out[k0 + count] = j
+                        if dense:
+                            img_out[k0 + count] = lookup[key]
+                        else:
+                            s_out[k0 + count, 0] = S0
+                            s_out[k0 + count, 1] = S1
+                            s_out[k0 + count, 2] = S2
+                    elif dense:
+                        present[key] = True
+                    count += 1
+    return count
+
+
+@nb.njit(cache=True, parallel=True)
+def _grid_count(pos, cell, bins, off, start, order, psorted, osorted, nbins, rb, periodic,
+                cut2, hw, present, counts):
+    """Pairs per row (into counts[1:]) and, per chunk of rows, the shift keys seen."""
+    n = pos.shape[0]
+    nchunks = present.shape[0]
+    empty_j = np.zeros(0, dtype=np.int32)
+    empty_img = np.zeros(0, dtype=np.int32)
+    empty_s = np.zeros((0, 3), dtype=np.int64)
+    for c in nb.prange(nchunks):
+        for i in range(n * c // nchunks, n * (c + 1) // nchunks):
+            counts[i + 1] = _grid_row(i, pos, cell, bins, off, start, order, psorted, osorted,
+                                      nbins, rb, periodic, cut2, hw, False, 0, empty_j,
+                                      empty_img, empty_s, empty_img, present[c])
+
+
+@nb.njit(cache=True, parallel=True)
+def _grid_fill(pos, cell, bins, off, start, order, psorted, osorted, nbins, rb, periodic,
+               cut2, hw, row, j_out, img_out, s_out, lookup):
+    n = pos.shape[0]
+    none = np.zeros(0, dtype=np.bool_)
+    for i in nb.prange(n):
+        _grid_row(i, pos, cell, bins, off, start, order, psorted, osorted, nbins, rb,
+                  periodic, cut2, hw, True, row[i], j_out, img_out, s_out, lookup, none)
+
+
+@nb.njit(cache=True, parallel=True)
+def _sort_pairs(row, j, img):
+    """Sort each row by (neighbour, image index) in place: neighbours in memory
+    order for the kernels' gathers; image indices follow the lexicographic
+    order of the shifts, so rows are sorted by (j, S)."""
+    n = len(row) - 1
+    for a in nb.prange(n):
+        lo = row[a]
+        for x in range(lo + 1, row[a + 1]):
+            kj = j[x]
+            km = img[x]
+            y = x - 1
+            while y >= lo and (j[y] > kj or (j[y] == kj and img[y] > km)):
+                j[y + 1] = j[y]
+                img[y + 1] = img[y]
+                y -= 1
+            j[y + 1] = kj
+            img[y + 1] = km
+
+
+def _index_type(nimages):
+    return np.int16 if nimages < 32768 else np.int32
+
+
+def _grid_half(positions, cell, pbc, reach):
+    """The half list (each pair once, in the row of its smaller index) within
+    ``reach`` by the cell-list search: (row, j, image, integer shifts table);
+    None where the grid cannot be laid (non-finite extent)."""
+    plan = _grid_plan(positions, cell, pbc, reach)
+    if plan is None:
+        return None
+    bins, off, nbins, rb, hw = plan
+    n = len(positions)
+    start, order = _bin_sort(bins, nbins)
+    psorted = positions[order]
+    osorted = off[order]
+    periodic = np.asarray(pbc, dtype=np.bool_)
+    cut2 = reach * reach
+    sizes = 2 * hw + 1
+    nkeys = int(np.prod(sizes.astype(float)))
+    dense = nkeys <= _DENSE_KEYS
+    from . import threads
+
+    nchunks = threads.chunks() if n >= 64 else 1
+    present = np.zeros((nchunks, nkeys if dense else 0), dtype=np.bool_)
+    row = np.zeros(n + 1, dtype=np.int64)
+    _grid_count(positions, cell, bins, off, start, order, psorted, osorted, nbins, rb,
+                periodic, cut2, hw, present, row)
+    np.cumsum(row, out=row)
+    npairs = int(row[-1])
+    j = np.empty(npairs, dtype=np.int32)
+    if dense:
+        seen = present.any(axis=0)
+        del present
+        seen |= seen[::-1]  # key(−S) = nkeys − 1 − key(S): the table holds ±S
+        keys = np.flatnonzero(seen)
+        if len(keys) == 0:
+            keys = np.array([nkeys // 2])  # the zero shift: a table is never empty
+        ints = np.column_stack(np.unravel_index(keys, tuple(sizes))) - hw
+        itype = _index_type(len(keys))
+        lookup = np.zeros(nkeys, dtype=itype)
+        lookup[keys] = np.arange(len(keys), dtype=itype)
+        image = np.empty(npairs, dtype=itype)
+        _grid_fill(positions, cell, bins, off, start, order, psorted, osorted, nbins, rb,
+                   periodic, cut2, hw, row, j, image, np.zeros((0, 3), dtype=np.int64),
+                   lookup)
+    else:
+        del present
+        s = np.empty((npairs, 3), dtype=np.int64)
+        _grid_fill(positions, cell, bins, off, start, order, psorted, osorted, nbins, rb,
+                   periodic, cut2, hw, row, j, np.zeros(0, dtype=np.int32), s,
+                   np.zeros(0, dtype=np.int32))
+        ints, index = np.unique(np.concatenate([s, -s]), axis=0, return_inverse=True)
+        image = index.reshape(-1)[:npairs].astype(_index_type(len(ints)))
+    _sort_pairs(row, j, image)
+    return row, j, image, ints.astype(np.int64)
+
+
+def _half_from_full(i, j, s, n):
+    """(row, j, image, shifts table) of the half list from a full list (i, j, S)."""
+    first = (j > i) | ((j == i) & ((s[:, 0] > 0) | ((s[:, 0] == 0) & (
+        (s[:, 1] > 0) | ((s[:, 1] == 0) & (s[:, 2] > 0))))))
+    if len(s):
+        ints, index = np.unique(s, axis=0, return_inverse=True)  # ±S: the list is full
+    else:
+        ints, index = np.zeros((1, 3), dtype=np.int64), np.zeros(0, dtype=np.int64)
+    i, j, image = i[first], j[first].astype(np.int32), index.reshape(-1)[first]
+    image = image.astype(_index_type(len(ints)))
+    row = _rows(i, n)
+    order = _bucket_by_row(i, row)
+    j, image = j[order], image[order]
+    _sort_pairs(row, j, image)
+    return row, j, image, ints.astype(np.int64)
+
+
+@nb.njit(cache=True)
+def _expand(row, j, image, nimages):
+    """The full list (each pair as i → j and j → i, rows sorted by (j, S)) of a
+    half list; the image −S has index nimages − 1 − m (the table is symmetric
+    and in lexicographic order)."""
+    n = len(row) - 1
+    full = np.zeros(n + 1, dtype=np.int64)
+    for a in range(n):
+        for k in range(row[a], row[a + 1]):
+            full[a + 1] += 1
+            full[j[k] + 1] += 1
+    for a in range(n):
+        full[a + 1] += full[a]
+    fill = full[:-1].copy()
+    fj = np.empty(full[n], dtype=j.dtype)
+    fm = np.empty(full[n], dtype=image.dtype)
+    for a in range(n):
+        for k in range(row[a], row[a + 1]):
+            b = j[k]
+            fj[fill[a]] = b
+            fm[fill[a]] = image[k]
+            fill[a] += 1
+            fj[fill[b]] = a
+            fm[fill[b]] = nimages - 1 - image[k]
+            fill[b] += 1
+    return full, fj, fm
+
+
+@nb.njit(cache=True, parallel=True)
+def _filter_count(positions, row, j, image, images, reach, mask, counts):
+    n = len(row) - 1
+    masked = mask.shape[0] > 0
+    for a in nb.prange(n):
+        c = 0
+        if not masked or mask[a]:
+            for k in range(row[a], row[a + 1]):
+                b = j[k]
+                if masked and not mask[b]:
+                    continue
+                if np.sqrt(separation(positions, images, a, b, image[k])[3]) < reach:
+                    c += 1
+        counts[a + 1] = c
+
+
+@nb.njit(cache=True, parallel=True)
+def _filter_fill(positions, row, j, image, images, reach, mask, sub, sj, simage):
+    n = len(row) - 1
+    masked = mask.shape[0] > 0
+    for a in nb.prange(n):
+        if masked and not mask[a]:
+            continue
+        c = sub[a]
+        for k in range(row[a], row[a + 1]):
+            b = j[k]
+            if masked and not mask[b]:
+                continue
+            if np.sqrt(separation(positions, images, a, b, image[k])[3]) < reach:
+                sj[c] = b
+                simage[c] = image[k]
+                c += 1
 
 
 @nb.njit(cache=True)
@@ -375,11 +660,16 @@ reduce_threads_serial = serial_twin(reduce_threads)
 
 
 class NeighborCache:
-    """A full Verlet list at ``max(cutoffs) + skin``, rebuilt only when needed.
+    """A half Verlet list at ``max(cutoffs) + skin``, rebuilt only when needed.
 
     Rebuilt when an atom has moved more than ``skin / 2`` since the last build,
     or when the cell, the periodicity or the number of atoms changed.
     ``builds`` counts the builds.
+
+    Only the half list (each pair once, 6 bytes a pair) and the positions it
+    was built at are kept: sub-lists at shorter cutoffs, for magnetic atoms, or
+    full (each pair both ways) are derived from it on demand, recomputing the
+    distances at the build positions rather than storing them.
     """
 
     def __init__(self, cutoff, skin=0.3):
@@ -389,31 +679,19 @@ class NeighborCache:
             raise ValueError(f"skin must be >= 0, got {skin}")
         self.cutoff = float(cutoff)
         self.skin = float(skin)
-        # vesin's own sort orders by i only; rows are sorted here (by j too)
-        # One vesin thread: its OpenMP workers would otherwise spin after each
-        # build and steal the cores from the numba kernels that follow.
-        self._vesin = self._new_vesin()
         self._reference = None
         self._cell = None
         self._pbc = None
         self._sublists = {}
         self.builds = 0
-        self.pairs = None
+        self.half = None
 
-    def _new_vesin(self):
-        return vesin.NeighborList(
-            cutoff=self.cutoff + self.skin, full_list=True, sorted=False, n_threads=1
-        )
-
-    def __getstate__(self):
-        # vesin's handle holds ctypes pointers: not copied, made anew
-        state = dict(self.__dict__)
-        del state["_vesin"]
-        return state
-
-    def __setstate__(self, state):
-        self.__dict__.update(state)
-        self._vesin = self._new_vesin()
+    @property
+    def pairs(self):
+        """The full list (i → j and j → i) within cutoff + skin, made on first use."""
+        if self.half is None:
+            return None
+        return self.sublist(self.cutoff)
 
     def invalidate(self):
         self._reference = None
@@ -433,43 +711,29 @@ class NeighborCache:
         if not self.needs_rebuild(positions, cell, pbc):
             return False
         cell, pbc = check_cell(cell, pbc)
+        # the old list and its sub-lists go before the new one is built
+        self.half = None
+        self._sublists = {}
         n = len(positions)
         if n:
-            i, j, s = self._search(positions, cell, pbc)
+            row, j, image, ints = self._search_half(positions, cell, pbc)
         else:
-            i = j = np.zeros(0, dtype=np.int64)
-            s = np.zeros((0, 3), dtype=np.int64)
-        row = _rows(i, n)
-        order = _bucket_by_row(i, row)
-        _sort_rows(row, j, s, order)
-        j = j[order].astype(np.int32)
-        images, image = _image_table(s[order], cell)
-        self.pairs = PairList(row, j, image, images, self.cutoff)
-        self._pair_i = i[order]
-        # each unordered pair once: i < j, or an atom and its own image with the
-        # shift that is lexicographically positive
-        so = s[order]
-        self._first = (j > self._pair_i) | (
-            (j == self._pair_i)
-            & ((so[:, 0] > 0) | ((so[:, 0] == 0) & ((so[:, 1] > 0)
-                                                    | ((so[:, 1] == 0) & (so[:, 2] > 0))))))
-        self._dist = np.empty(len(j))
-        _pair_distances(positions, row, j, image, images, self._dist)
+            row, j = np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int32)
+            image, ints = np.zeros(0, dtype=np.int16), np.zeros((1, 3), dtype=np.int64)
+        images = np.ascontiguousarray(ints @ cell)
+        self.half = PairList(row, j, image, images, self.cutoff, half=True)
+        self._ints = ints
         self._reference = positions.copy()
         self._cell = cell.copy()
         self._pbc = pbc.copy()
-        self._sublists = {}
         self.builds += 1
         return True
 
-    def _search(self, positions, cell, pbc):
-        """All pairs within cutoff + skin as (i, j, integer shifts S) with
-        d_ij = r_j + S·cell − r_i for the positions as given (unwrapped).
-
-        vesin searches positions wrapped into the cell (atoms any number of
-        cells away cost nothing extra); boxes too elongated for its cell list
-        (open directions with atoms far apart, a periodic vector of 1e8 Å) go
-        to a sweep over atoms sorted along x instead."""
+    def _search_half(self, positions, cell, pbc):
+        """The half list within cutoff + skin as (row, j, image, shifts table)
+        with d_ij = r_j + S·cell − r_i for the positions as given (unwrapped):
+        a cell list (:func:`_grid_half`); boxes whose extent is not finite go
+        to a sweep over atoms sorted along x."""
         reach = self.cutoff + self.skin
         periodic = np.flatnonzero(pbc)
         if periodic.size:
@@ -480,42 +744,57 @@ class NeighborCache:
                     f"the cell is too small along its periodic directions for the cutoff "
                     f"{reach:.3g} Å (distances between faces {faces.round(6).tolist()} Å): "
                     f"each atom would see ~{images:.3g} periodic images of every other atom")
+        found = _grid_half(positions, cell, pbc, reach)
+        if found is not None:
+            return found
         wrapped, shift = _wrap(positions, cell, pbc)
-        if _vesin_can(wrapped, cell, pbc, reach):
-            i, j, s = self._vesin.compute(wrapped, cell, pbc, "ijS", copy=False)
-            i = i.astype(np.int64)
-            j = j.astype(np.int64)
-            s = np.asarray(s, dtype=np.int64)
-        else:
-            i, j, s = _sweep_pairs(wrapped, cell, pbc, reach)
+        i, j, s = _sweep_pairs(wrapped, cell, pbc, reach)
         if shift.any():
             s = s + shift[i] - shift[j]
-        return i, j, s
+        return _half_from_full(i, j, s, len(positions))
+
+    def _search(self, positions, cell, pbc):
+        """All pairs within cutoff + skin as (i, j, integer shifts S), both ways,
+        with d_ij = r_j + S·cell − r_i for the positions as given."""
+        cell, pbc = check_cell(cell, pbc)
+        row, j, image, ints = self._search_half(np.ascontiguousarray(positions, dtype=float),
+                                                cell, pbc)
+        row, j, image = _expand(row, j, image, len(ints))
+        i = np.repeat(np.arange(len(row) - 1), np.diff(row))
+        return i, j.astype(np.int64), ints[image]
 
     def sublist(self, cutoff, mask=None, half=False):
         """Pairs within ``cutoff + skin`` at the last build, between atoms where
         ``mask`` is True (all atoms if None); with ``half``, each unordered pair
         once (row of the smaller index). Cached until the next rebuild."""
+        if mask is not None and mask.all():
+            mask = None  # every atom: the same list as without a mask
         key = (float(cutoff), None if mask is None else mask.tobytes(), half)
         cached = self._sublists.get(key)
         if cached is not None:
             return cached
-        if cutoff >= self.cutoff and mask is None and not half:
-            sub = self.pairs
+        master = self.half
+        if cutoff >= self.cutoff and mask is None:
+            row, j, image = master.row, master.j, master.image
         else:
-            keep = self._dist < cutoff + self.skin
-            if half:
-                keep &= self._first
-            if mask is not None:
-                keep &= mask[self._pair_i] & mask[self.pairs.j]
-            n = len(self.pairs.row) - 1
-            sub = PairList(
-                _rows(self._pair_i[keep], n),
-                np.ascontiguousarray(self.pairs.j[keep]),
-                np.ascontiguousarray(self.pairs.image[keep]),
-                self.pairs.images,
-                float(cutoff),
-                half,
-            )
+            n = len(master.row) - 1
+            row = np.zeros(n + 1, dtype=np.int64)
+            m = np.zeros(0, dtype=np.bool_) if mask is None else np.ascontiguousarray(
+                mask, dtype=np.bool_)
+            reach = cutoff + self.skin
+            _filter_count(self._reference, master.row, master.j, master.image, master.images,
+                          reach, m, row)
+            np.cumsum(row, out=row)
+            j = np.empty(row[-1], dtype=master.j.dtype)
+            image = np.empty(row[-1], dtype=master.image.dtype)
+            _filter_fill(self._reference, master.row, master.j, master.image, master.images,
+                         reach, m, row, j, image)
+        if half and j is master.j:
+            sub = master  # shared, not copied: the list itself
+        elif half:
+            sub = PairList(row, j, image, master.images, float(cutoff), True)
+        else:
+            row, j, image = _expand(row, j, image, len(master.images))
+            sub = PairList(row, j, image, master.images, float(cutoff), False)
         self._sublists[key] = sub
         return sub

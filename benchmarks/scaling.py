@@ -2,6 +2,7 @@
 memory against N (500 to 10⁶), one thread against two, sweeps per step against dt.
 
     python benchmarks/scaling.py [--sizes 5 10 20 40 63] [--threads 1 2] [--dts ...]
+    python benchmarks/scaling.py --sizes 63 136 --threads 2 --dts     # 10⁶ and 10⁷ atoms only
 
 Each (N, threads) runs in its own process (numba's thread count is fixed per
 process, and peak memory is per process): the scene is built, two warm-up steps
@@ -58,7 +59,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser()
     parser.add_argument("--sizes", type=int, nargs="+", default=[5, 10, 20, 40, 63])
     parser.add_argument("--threads", type=int, nargs="+", default=[2, 1])
-    parser.add_argument("--dts", type=float, nargs="+", default=[0.05, 0.1, 0.2, 0.5, 1.0, 2.0])
+    parser.add_argument("--dts", type=float, nargs="*", default=[0.05, 0.1, 0.2, 0.5, 1.0, 2.0])
     parser.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
@@ -70,7 +71,7 @@ def main(argv=None):
     print(describe())
     print("# fcc Co, dt = 0.1 fs, order 2")
     print(f"{'N':>9} {'threads':>7} {'µs/atom-step':>13} {'s/step':>8} {'sweeps':>7} "
-          f"{'setup s':>8} {'peak MB':>8}")
+          f"{'setup s':>8} {'peak MB':>8} {'B/atom':>7}")
     for n in args.sizes:
         for threads in args.threads:
             if threads == 1 and n > 20:
@@ -79,9 +80,10 @@ def main(argv=None):
             r = spawn(n, steps, 0.1, threads)
             print(f"{r['N']:9d} {r['threads']:7d} {r['us_per_atom_step']:13.3f} "
                   f"{r['s_per_step']:8.4f} {r['sweeps']:7.2f} {r['setup_s']:8.1f} "
-                  f"{r['peak_MB']:8.0f}", flush=True)
-    print("# sweeps per step against dt, N = 4000, 2 threads")
-    for dt in args.dts:
+                  f"{r['peak_MB']:8.0f} {r['peak_MB'] * 2**20 / r['N']:7.0f}", flush=True)
+    if args.dts:
+        print("# sweeps per step against dt, N = 4000, 2 threads")
+    for dt in args.dts:  # none: skipped
         r = spawn(10, max(20, int(40 / dt)), dt, max(args.threads))
         print(f"dt {dt:5.2f} fs: {r['sweeps']:6.2f} sweeps/step, "
               f"{r['us_per_atom_step']:.3f} µs/atom-step", flush=True)

@@ -1,9 +1,9 @@
 """LJ + exchange step time of both integrators, for comparing code versions.
 
     python benchmarks/step_time.py                                  # this tree
-    python benchmarks/step_time.py --compare OLD_TREE NEW_TREE --rounds 3
+    python benchmarks/step_time.py --compare OLD_TREE NEW_TREE --rounds 3 [--sizes 10 20]
 
-fcc Co (peers.md scene) at N = 500 and 4 000, 0.1 fs, default threads; median
+fcc Co (peers.md scene) at N = 500 and 4 000 (``--sizes``: repeats n, 4n³ atoms), 0.1 fs, default threads; median
 of 5 × 20 steps after 5 warm-up steps, µs per atom-step. ``--compare`` runs the
 measurement in a fresh process per tree (PYTHONPATH set to it), alternating
 the trees round by round (a worktree of an older commit: ``git worktree add
@@ -18,7 +18,7 @@ import sys
 import time
 
 
-def measure():
+def measure(sizes=(5, 10)):
     import numpy as np
     from ase import units
 
@@ -26,7 +26,7 @@ def measure():
     from ase_spin.scenes import fcc_cobalt
 
     out = {}
-    for n in (5, 10):
+    for n in sizes:
         for cls in (CollectivePRK, SuzukiTrotter):
             atoms = fcc_cobalt(n)
             dyn = cls(atoms, 0.1 * units.fs)
@@ -44,9 +44,10 @@ def main(argv=None):
     parser = argparse.ArgumentParser()
     parser.add_argument("--compare", nargs=2, metavar=("OLD_TREE", "NEW_TREE"))
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--sizes", type=int, nargs="+", default=[5, 10])
     args = parser.parse_args(argv)
     if not args.compare:
-        print(json.dumps(measure()))
+        print(json.dumps(measure(args.sizes)))
         return
     sys.path.insert(0, os.path.dirname(__file__))
     sys.path.insert(0, os.path.abspath(args.compare[1]))  # describe() names the new tree's version
@@ -57,7 +58,8 @@ def main(argv=None):
 
     def run(tree):
         env = dict(os.environ, PYTHONPATH=os.path.abspath(tree))
-        out = subprocess.run([sys.executable, script], cwd=tree, env=env, check=True,
+        sizes = [str(n) for n in args.sizes]
+        out = subprocess.run([sys.executable, script, "--sizes", *sizes], cwd=tree, env=env, check=True,
                              capture_output=True, text=True).stdout
         return json.loads(out.strip().splitlines()[-1])
 

@@ -248,7 +248,8 @@ class SpinLatticeDynamics(MolecularDynamics):
         if h < MIN_TIMESTEP_FS * units.fs:
             problems.append(f"it is below {MIN_TIMESTEP_FS} fs")
         if self.magnetic:
-            B = ev.spin(ev.spin_operators(q), spins, Want(magnetic_forces=True)).magnetic_forces
+            # one direct pass over the half list: no pair geometry kept for this
+            B = ev.evaluate(q, spins, Want(magnetic_forces=True)).magnetic_forces
             omega = float(np.max(self._precession_rates(mu) * np.linalg.norm(B, axis=1)))
             omega /= self.hbar
             if h * omega > MAX_PHASE:

@@ -161,7 +161,7 @@ class CollectivePRK(SpinLatticeDynamics):
             elif kernels.max_abs_difference(qt, qt_used) <= qtol:
                 break
             if ev.refresh(qt):  # a new pair list: the operators at q must use it too
-                st.ops = ev.spin_operators(q, half=self.half_lists)
+                st.ops = ev.spin_operators(q, out=st.ops, half=self.half_lists)
             st.ops_next = ev.spin_operators(qt, out=st.ops_next, mean_with=st.ops,
                                             half=self.half_lists)
             geometries += 1

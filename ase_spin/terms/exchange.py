@@ -324,6 +324,8 @@ class Exchange(SpinTerm):
             op = out
             op.offset = self.energy_offset
         else:
+            if out is not None:  # its buffers are given up: freed before the new ones
+                out.J = out.G = out.D = out.Jbar = None
             op = ExchangeOperator(pairs, np.empty(n), np.empty((n, 3)),
                                   np.empty((n, 3)) if virial else None, self.energy_offset)
         if mean_with is not None:
