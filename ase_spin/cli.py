@@ -2,6 +2,7 @@
 
     ase-spin run INPUT.toml [--steps N] [--overwrite] [--no-progress]
     ase-spin plot LOG [-o PNG]
+    ase-spin compile [INPUT.toml ...] [--jobs N]
 
 The input file (TOML) is kept with the data; every relative path in it is
 relative to its own folder. Its tables (docs/command_line.md has a full
@@ -499,6 +500,11 @@ def _parser():
     p = sub.add_parser("plot", help="plot energies, temperatures and |M| of a log")
     p.add_argument("log", help="log file written by an ase_spin integrator")
     p.add_argument("-o", "--output", help="PNG to write (default: LOG with .png)")
+    c = sub.add_parser("compile", help="compile the numba kernels ahead of time (into "
+                       "numba's disk cache) for the scenes of input files, or a built-in set")
+    c.add_argument("inputs", nargs="*", help="input files (TOML) whose scenes to compile for")
+    c.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                   help="processes compiling at once (default: the number of CPUs)")
     return parser
 
 
@@ -512,6 +518,13 @@ def main(argv=None):
         if args.command == "run":
             run(args.input, steps=args.steps, overwrite=args.overwrite,
                 progress=not args.no_progress)
+        elif args.command == "compile":
+            from .warmup import compile_kernels
+
+            if args.jobs < 1:
+                raise InputError(f"--jobs must be at least 1, got {args.jobs}")
+            os.environ.setdefault("ASE_SPIN_QUIET_COMPILE", "1")  # it says what it does
+            compile_kernels(args.inputs, jobs=args.jobs)
         else:
             png = plot_log(args.log, args.output)
             print(f"wrote {png}")

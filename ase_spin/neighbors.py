@@ -25,7 +25,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .threads import serial_twin
+from .threads import prange_only, serial_twin
 
 __all__ = ["PairList", "NeighborCache"]
 
@@ -447,7 +447,7 @@ def _grid_row(i, pos, cell, bins, off, start, order, psorted, osorted, nbins, rb
     return count
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=prange_only())
 def _grid_count(pos, cell, bins, off, start, order, psorted, osorted, nbins, rb, periodic,
                 cut2, hw, present, counts):
     """Pairs per row (into counts[1:]) and, per chunk of rows, the shift keys seen."""
@@ -463,7 +463,7 @@ def _grid_count(pos, cell, bins, off, start, order, psorted, osorted, nbins, rb,
                                       empty_img, empty_s, empty_img, present[c])
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=prange_only())
 def _grid_fill(pos, cell, bins, off, start, order, psorted, osorted, nbins, rb, periodic,
                cut2, hw, row, j_out, img_out, s_out, lookup):
     n = pos.shape[0]
@@ -473,7 +473,7 @@ def _grid_fill(pos, cell, bins, off, start, order, psorted, osorted, nbins, rb, 
                   periodic, cut2, hw, True, row[i], j_out, img_out, s_out, lookup, none)
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=prange_only())
 def _sort_pairs(row, j, img):
     """Sort each row by (neighbour, image index) in place: neighbours in memory
     order for the kernels' gathers; image indices follow the lexicographic
@@ -596,7 +596,7 @@ def _expand(row, j, image, nimages):
     return full, fj, fm
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=prange_only())
 def _filter_count(positions, row, j, image, images, reach, mask, counts):
     n = len(row) - 1
     masked = mask.shape[0] > 0
@@ -612,7 +612,7 @@ def _filter_count(positions, row, j, image, images, reach, mask, counts):
         counts[a + 1] = c
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=prange_only())
 def _filter_fill(positions, row, j, image, images, reach, mask, sub, sj, simage):
     n = len(row) - 1
     masked = mask.shape[0] > 0
@@ -647,7 +647,7 @@ def balanced_chunks(row, nchunks):
     return bounds
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=prange_only())
 def reduce_threads(buf, out):
     """out[i] += Σ_t buf[t, i]: sum per-thread buffers (t, n, k) into (n, k)."""
     for i in nb.prange(buf.shape[1]):
@@ -657,6 +657,18 @@ def reduce_threads(buf, out):
 
 
 reduce_threads_serial = serial_twin(reduce_threads)
+
+
+@nb.njit(cache=True)
+def sum_over_threads(acc):
+    """out_c = Σ_t acc[t, c] for t = 0, 1, ... in order, from 0.0: the same
+    sums, bit for bit, as ``acc.sum(axis=0)``, which numba compiles with its
+    axis checks and their error messages (about a second per kernel using it)."""
+    out = np.zeros(acc.shape[1])
+    for t in range(acc.shape[0]):
+        for c in range(acc.shape[1]):
+            out[c] += acc[t, c]
+    return out
 
 
 class NeighborCache:

@@ -20,7 +20,7 @@ from contextlib import contextmanager
 import numba as nb
 
 __all__ = ["SERIAL_BELOW", "threads_for", "count", "threaded", "serial_twin",
-           "AdaptiveThreads"]
+           "prange_only", "AdaptiveThreads"]
 
 #: Systems with fewer atoms than this run the serial twins.
 SERIAL_BELOW = 1500
@@ -73,11 +73,26 @@ def serial_twin(dispatcher, **replace):
     return nb.njit(cache=True, error_model="numpy")(twin)
 
 
+def prange_only():
+    """numba's ``parallel=`` option for this package's threaded kernels: only
+    the explicit ``prange`` loops run on threads.
+
+    With ``parallel=True`` numba also turns every array expression and
+    allocation (``np.zeros`` of the per-thread buffers, ``.max()``, ...) into
+    a parallel loop of its own, each compiled as a separate threaded function;
+    the kernels here split their work into fixed chunks by hand and gain
+    nothing from those, while they doubled the compile time of the largest
+    kernels (Lennard-Jones and exchange: 2.5–3.2 s each to 1.4–1.7 s,
+    benchmarks/first_use.py). A new dict per call: numba consumes it."""
+    return dict(prange=True, comprehension=False, reduction=False, inplace_binop=False,
+                setitem=False, numpy=False, stencil=False, fusion=False)
+
+
 class _Threaded:
     """A kernel callable from Python that runs its threaded or serial twin."""
 
     def __init__(self, fn, replace, always):
-        self.parallel = nb.njit(cache=True, parallel=True)(fn)
+        self.parallel = nb.njit(cache=True, parallel=prange_only())(fn)
         self.always = always
         self._replace = replace
         self._serial = None

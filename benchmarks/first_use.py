@@ -11,6 +11,14 @@ with ``--unwritable``, a copy whose folders numba cannot write to (a
 system-wide install run by a user): the cache goes to the user's cache folder.
 
     python benchmarks/first_use.py [--unwritable] [--pip]
+    python benchmarks/first_use.py --before OLD_TREE [--repeat 2]
+
+``--before`` measures another source tree (e.g. ``git worktree add /tmp/old
+<commit>``) in the same run: for each repeat, each tree in turn (alternating),
+a fresh copy cold then warm, and ``examples/demo.py`` (500 atoms, 500 steps)
+in another fresh copy cold then warm; medians over the repeats. Besides wall
+times it reports each process's CPU time (user + sys, children included),
+which another job on the machine changes less: compilation runs on one core.
 
 Stages of the script (fcc Co, 4·3³ = 108 atoms, LJ + Bethe–Slater exchange):
 import ase_spin; one calculator evaluation (E, F, B, stress); 2 CollectivePRK
@@ -23,6 +31,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
+import resource
 import shutil
 import subprocess
 import sys
@@ -64,17 +74,34 @@ STAGES = ["import ase_spin", "calculator E, F, B, stress", "CollectivePRK, 2 ste
           "SuzukiTrotter, 2 steps", "CollectivePRK + Zeeman + anisotropy, 2 steps"]
 
 
-def run_child(python, env, cwd):
+def _timed(argv, env, cwd):
+    """Run a process; (its CompletedProcess, wall s, CPU s of it and its children)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = _now()
-    done = subprocess.run([python, "-c", CHILD], capture_output=True, text=True, env=env,
-                          cwd=cwd, timeout=1800)
+    done = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=cwd, timeout=1800)
     wall = _now() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     if done.returncode:
         raise SystemExit(done.stderr)
+    return done, wall, cpu
+
+
+def run_child(python, env, cwd):
+    done, wall, cpu = _timed([python, "-c", CHILD], env, cwd)
     result = json.loads(done.stdout.strip().splitlines()[-1])
     result["wall"] = wall
+    result["cpu"] = cpu
     result["announced"] = "compiling numba kernels" in done.stderr
     return result
+
+
+def run_demo(python, env, cwd):
+    """examples/demo.py as a user runs it: wall and CPU time of the process, and
+    the time of its first 50 steps as it prints them (with compilation)."""
+    done, wall, cpu = _timed([python, str(ROOT / "examples" / "demo.py")], env, cwd)
+    first = re.search(r"the first 50 in ([0-9.]+) s", done.stdout)
+    return {"wall": wall, "cpu": cpu, "first50": float(first.group(1)) if first else float("nan")}
 
 
 def _now():
@@ -90,12 +117,70 @@ def _clean_env(**extra):
     return env
 
 
-def _copy_source(dest):
+def _copy_source(dest, root=ROOT):
     dest.mkdir(parents=True)
-    shutil.copytree(ROOT / "ase_spin", dest / "ase_spin",
+    shutil.copytree(root / "ase_spin", dest / "ase_spin",
                     ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
     for name in ("pyproject.toml", "README.md"):
-        shutil.copy(ROOT / name, dest / name)
+        shutil.copy(root / name, dest / name)
+
+
+def _load():
+    return " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def _median(values):
+    values = sorted(values)
+    n = len(values)
+    return values[n // 2] if n % 2 else 0.5 * (values[n // 2 - 1] + values[n // 2])
+
+
+def compare(before, repeat):
+    """Cold and warm start of two trees, alternating, ``repeat`` rounds; medians."""
+    trees = {"before": before, "after": ROOT}
+    runs = {(name, kind): [] for name in trees for kind in ("cold", "warm", "demo cold",
+                                                          "demo warm")}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        neutral = tmp / "run"
+        neutral.mkdir()
+        for r in range(repeat):
+            for name, root in trees.items():
+                copy = tmp / f"{name}{r}"
+                _copy_source(copy, root)
+                env = _clean_env(PYTHONPATH=str(copy))
+                runs[name, "cold"].append(run_child(sys.executable, env, neutral))
+                runs[name, "warm"].append(run_child(sys.executable, env, neutral))
+                demo = tmp / f"{name}{r}demo"
+                _copy_source(demo, root)
+                env = _clean_env(PYTHONPATH=str(demo))
+                runs[name, "demo cold"].append(run_demo(sys.executable, env, neutral))
+                runs[name, "demo warm"].append(run_demo(sys.executable, env, neutral))
+                print(f"# round {r + 1}, {name}: cold {runs[name, 'cold'][-1]['wall']:.1f} s, "
+                      f"warm {runs[name, 'warm'][-1]['wall']:.1f} s, demo cold "
+                      f"{runs[name, 'demo cold'][-1]['wall']:.1f} s, demo warm "
+                      f"{runs[name, 'demo warm'][-1]['wall']:.1f} s (load {_load()})",
+                      flush=True)
+    columns = [(f"{kind}, {name}", runs[name, kind]) for kind in ("cold", "warm")
+               for name in trees]
+    print(f"\nmedians of {repeat} round(s), seconds; before = {before}, after = {ROOT}\n")
+    print("| stage | " + " | ".join(c for c, _ in columns) + " |")
+    print("|---|" + "---|" * len(columns))
+    for k, stage in enumerate(STAGES):
+        print(f"| {stage} | " + " | ".join(f"{_median([x['stages'][k] for x in xs]):.2f}"
+                                           for _, xs in columns) + " |")
+    for key, label in (("wall", "whole process (wall)"), ("cpu", "whole process (CPU)")):
+        print(f"| {label} | " + " | ".join(f"{_median([x[key] for x in xs]):.2f}"
+                                           for _, xs in columns) + " |")
+    print("\nexamples/demo.py (500 atoms, 500 steps), seconds:\n")
+    columns = [(f"{kind}, {name}", runs[name, f"demo {kind}"]) for kind in ("cold", "warm")
+               for name in trees]
+    print("| | " + " | ".join(c for c, _ in columns) + " |")
+    print("|---|" + "---|" * len(columns))
+    for key, label in (("first50", "first 50 steps (as printed)"),
+                       ("wall", "whole process (wall)"), ("cpu", "whole process (CPU)")):
+        print(f"| {label} | " + " | ".join(f"{_median([x[key] for x in xs]):.2f}"
+                                           for _, xs in columns) + " |")
 
 
 def _cache_files(folder):
@@ -109,6 +194,7 @@ def table(rows):
     for k, stage in enumerate(STAGES):
         print(f"| {stage} | " + " | ".join(f"{r['stages'][k]:.2f}" for _, r in rows) + " |")
     print("| whole process (wall) | " + " | ".join(f"{r['wall']:.2f}" for _, r in rows) + " |")
+    print("| whole process (CPU) | " + " | ".join(f"{r['cpu']:.2f}" for _, r in rows) + " |")
     print("| compilation announced | " + " | ".join("yes" if r["announced"] else "no"
                                                    for _, r in rows) + " |")
 
@@ -119,7 +205,20 @@ def main():
                         help="also time a pip install into a fresh virtual environment")
     parser.add_argument("--unwritable", action="store_true",
                         help="also time a copy whose package folders numba cannot write to")
+    parser.add_argument("--before", metavar="OLD_TREE",
+                        help="another source tree to measure in the same run, alternating")
+    parser.add_argument("--repeat", type=int, default=2, help="rounds with --before")
     args = parser.parse_args()
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    sys.path.insert(0, str(ROOT))
+    from machine import describe
+
+    print(describe(), flush=True)
+    print(f"# load average at start: {_load()}", flush=True)
+    if args.before:
+        compare(Path(args.before).resolve(), args.repeat)
+        print(f"\n# load average at end: {_load()}")
+        return
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         copy = tmp / "copy"

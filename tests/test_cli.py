@@ -415,3 +415,35 @@ def test_an_unstable_run_stops_with_a_message(tmp_path, capsys):
     assert run_cli("run", path, "--no-progress") == 1
     err = capsys.readouterr().err
     assert err.startswith("ase-spin: the run stopped:") and "fs" in err
+
+
+def test_compile_command_runs_each_scene_and_writes_nothing(tmp_path, capsys):
+    """``ase-spin compile INPUT`` evaluates the scene and takes two steps (the
+    kernels it needs end up in numba's cache), says where the cache is, and
+    leaves no output file behind."""
+    path = write_input(tmp_path, steps=50, interval=1)
+    assert run_cli("compile", path, "--jobs", "1") == 0
+    out = capsys.readouterr().out
+    assert str(path) in out and "CPU:" in out and "done in" in out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.toml"]
+    assert run_cli("compile", path, "--jobs", "0") == 2
+    assert "--jobs" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_compile_command_fills_an_empty_cache_for_later_runs(tmp_path):
+    """After ``ase-spin compile INPUT`` with an empty cache (two processes), a
+    run of that scene compiles nothing (no first-use notice)."""
+    path = write_input(tmp_path, steps=2, interval=1)
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    env.pop("ASE_SPIN_QUIET_COMPILE", None)
+    first = subprocess.run([sys.executable, "-m", "ase_spin.cli", "compile", str(path), str(path),
+                            "--jobs", "2"], capture_output=True, text=True, env=env,
+                           timeout=1200)
+    assert first.returncode == 0, first.stderr
+    assert "kernel(s) compiled" in first.stdout and "compiling numba" not in first.stderr
+    run = subprocess.run([sys.executable, "-m", "ase_spin.cli", "run", str(path), "--steps", "2",
+                          "--no-progress"], capture_output=True, text=True, env=env,
+                         timeout=1200)
+    assert run.returncode == 0, run.stderr
+    assert "compiling numba kernels" not in run.stderr, run.stderr

@@ -79,3 +79,34 @@ def test_frozen_lattice_and_bad_rotation():
     assert np.array_equal(atoms.positions, x0)
     with pytest.raises(ValueError, match="rotation"):
         SuzukiTrotter(atoms, 1.0, rotation="euler")
+
+
+def test_site_sweeps_are_cached_on_disk_per_combination_of_terms():
+    """The sequential sweeps over any spin terms are compiled once per
+    combination of terms and kept in numba's disk cache (a kernel taking the
+    field functions as arguments could not be, and compiled in every
+    process); the order of the terms makes another kernel."""
+    from pathlib import Path
+
+    from ase_spin import UniaxialAnisotropy, Zeeman, compilation
+    from ase_spin.md import splitting
+
+    pad = (splitting._no_site,) * (splitting.MAX_SITE_TERMS - 2)
+    one = (Zeeman.site_field, UniaxialAnisotropy.site_field, *pad)
+    other = (UniaxialAnisotropy.site_field, Zeeman.site_field, *pad)
+    sweeps = splitting.rotate_sweeps_sites(one)
+    assert splitting.rotate_sweeps_sites(one) is sweeps
+    assert splitting.rotate_sweeps_sites(other).py_func.__qualname__ != sweeps.py_func.__qualname__
+    s = np.tile([0.6, 0.0, 0.8], (4, 1))
+    data = (Zeeman(1.0, [0, 0, 1]).bind(_system(4)), UniaxialAnisotropy(0.01, [1, 0, 0]).bind(
+        _system(4)), *(splitting._NO_DATA,) * len(pad))
+    sweeps(s, np.full(4, 0.1), False, *data)
+    name = sweeps.py_func.__qualname__
+    assert list(Path(compilation.cache_dir(sweeps)).glob(f"splitting.{name}-*.nbi")), name
+
+
+def _system(n):
+    from ase_spin.terms.base import Species, System
+
+    return System(Species.from_symbols(["Co"] * n), np.full(n, 1.72), np.eye(3) * 10.0,
+                  np.array([True] * 3))

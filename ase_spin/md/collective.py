@@ -126,7 +126,8 @@ class CollectivePRK(SpinLatticeDynamics):
         st.ops_next = None
         st.Wnext = np.zeros_like(st.s)
         magnetic_rows = np.flatnonzero(self.ev.magnetic)
-        st.probe = magnetic_rows[:: max(1, len(magnetic_rows) // 64)]
+        # contiguous whatever the stride: one compiled specialisation of _best_order
+        st.probe = np.ascontiguousarray(magnetic_rows[:: max(1, len(magnetic_rows) // 64)])
 
     # -- the step ---------------------------------------------------------------
 

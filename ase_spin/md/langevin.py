@@ -15,6 +15,7 @@ from ase import units
 
 from ..hamiltonian import Want
 from ..validate import flag, real_scalar
+from . import kernels
 from .collective import CollectivePRK
 from .logger import SpinMDLogger
 from ..threads import threaded
@@ -22,89 +23,130 @@ from ..threads import threaded
 __all__ = ["Langevin", "relax_spins", "LangevinLogger"]
 
 _EB = Want(energy=True, magnetic_forces=True)
-_E = Want(energy=True)
+_B = Want(magnetic_forces=True)
+_NO_FORCES = np.zeros((0, 3))
+_NO_ENERGIES = np.zeros(0)
 
 
 # -- compiled per-spin pieces of the spin bath ------------------------------------
 
 @nb.njit(cache=True, inline="always")
-def _normalise_row(s, i, x, y, z):
-    n = np.sqrt(x * x + y * y + z * z)
-    if n > 0.0:
-        s[i, 0] = x / n
-        s[i, 1] = y / n
-        s[i, 2] = z / n
+def _unit(x, y, z):
+    n = 1.0 / np.sqrt(x * x + y * y + z * z)
+    return x * n, y * n, z * n
+
+
+@nb.njit(cache=True, inline="always")
+def _one_minus_exp(a):
+    """1 − e^{−a} for a ≥ 0 to round-off: its Taylor series to a⁹ below
+    a = 0.03 (the rest is below 1e-17 relative; the damping angle of a step is
+    usually there, and libm's expm1 costs several times more), else expm1."""
+    if a < 0.03:
+        return a * (1.0 - a * (1.0 / 2 - a * (1.0 / 6 - a * (1.0 / 24 - a * (
+            1.0 / 120 - a * (1.0 / 720 - a * (1.0 / 5040 - a * (1.0 / 40320
+                                                           - a / 362880))))))))
+    return -np.expm1(-a)
+
+
+@nb.njit(cache=True, inline="always")
+def _damped(sx, sy, sz, bx, by, bz, a):
+    r"""s moved by the damping flow ds/dt = κ[B − (s·B)s] about the frozen field
+    B = |B| b̂ (``bx, by, bz`` = b̂) for a = κ|B|t: along the great circle to
+    b̂, tan(θ/2) = tan(θ₀/2) e^{−a}; s' ∝ s sech a + [u₀(1 − sech a) + tanh a] b̂,
+    u₀ = s·b̂, written with e = e^{−a}: sech a = 2e/(1+e²), tanh a =
+    (1−e²)/(1+e²), 1 − sech a = (1−e)²/(1+e²) (1 − e = −expm1(−a): no
+    cancellation); normalised (|s'| = 1 to round-off)."""
+    if a == 0.0:
+        return sx, sy, sz
+    m = _one_minus_exp(a)
+    e = 1.0 - m
+    den = 1.0 / (1.0 + e * e)
+    sech = 2.0 * e * den
+    c = (sx * bx + sy * by + sz * bz) * (m * m * den) + m * (1.0 + e) * den
+    return _unit(sx * sech + c * bx, sy * sech + c * by, sz * sech + c * bz)
+
+
+@nb.njit(cache=True, inline="always")
+def _diffused(sx, sy, sz, sigma, x1, x2):
+    r"""s' = (s + ζ)/|s + ζ| for the tangent Gaussian vector ζ = σ(ξ₁ e₁ + ξ₂ e₂)
+    (e₁, e₂ an orthonormal basis of the tangent plane at s): a step of angle
+    atan|ζ| in a uniformly random direction (:func:`noise_amplitude`)."""
+    if sigma == 0.0:
+        return sx, sy, sz
+    if sx * sx < 0.5:  # e1 = s × x̂ / |s × x̂|
+        n = 1.0 / np.sqrt(sy * sy + sz * sz)
+        e1x, e1y, e1z = 0.0, sz * n, -sy * n
+    else:  # e1 = s × ŷ / |s × ŷ|
+        n = 1.0 / np.sqrt(sx * sx + sz * sz)
+        e1x, e1y, e1z = -sz * n, 0.0, sx * n
+    e2x = sy * e1z - sz * e1y
+    e2y = sz * e1x - sx * e1z
+    e2z = sx * e1y - sy * e1x
+    x1 *= sigma
+    x2 *= sigma
+    return _unit(sx + x1 * e1x + x2 * e2x, sy + x1 * e1y + x2 * e2y,
+                 sz + x1 * e1z + x2 * e2z)
+
+
+@nb.njit(cache=True, inline="always")
+def _direction(B, i):
+    """(b̂, |B|) of row i; b̂ = 0 where B = 0."""
+    bx, by, bz = B[i, 0], B[i, 1], B[i, 2]
+    b = np.sqrt(bx * bx + by * by + bz * bz)
+    if b == 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    inv = 1.0 / b
+    return bx * inv, by * inv, bz * inv, b
 
 
 @threaded()
-def damp(s, B, a_per_field, magnetic):
-    r"""The exact solution of the damping flow about frozen fields, in place.
-
-    ds_i/dt = κ_i [B_i − (s_i·B_i) s_i] (κ_i = λ r_i/ħ', ``a_per_field[i]`` =
-    κ_i t) moves s_i along the great circle towards B̂_i with
-    tan(θ/2) = tan(θ₀/2) e^{−a}, a = κ_i |B_i| t; in vector form
-
-    .. math:: \mathbf s' \propto \mathbf s\,\mathrm{sech}\,a +
-              [u_0 (1 - \mathrm{sech}\,a) + \tanh a]\,\hat{\mathbf b},
-              \qquad u_0 = \mathbf s\cdot\hat{\mathbf b},
-
-    normalised (the norm is 1 + u₀ tanh a; dividing by the computed norm keeps
-    |s| at round-off).
-    """
+def bath_block(s, before, B, k1, sigma, xi, k2, magnetic):
+    """The spin bath between two collective steps, in place, per magnetic spin:
+    s ← D_B(k2) N(σ, ξ) D_B(k1) s (:func:`_damped` with a = k|B_i|,
+    :func:`_diffused`; k = κ_i t per spin, 0: no damping; σ_i = 0: no noise),
+    the state before the last D written to ``before``."""
     for i in nb.prange(s.shape[0]):
         if not magnetic[i]:
             continue
-        bx = B[i, 0]
-        by = B[i, 1]
-        bz = B[i, 2]
-        b = np.sqrt(bx * bx + by * by + bz * bz)
-        if b == 0.0:
-            continue
-        a = a_per_field[i] * b
-        if a == 0.0:
-            continue
-        bx /= b
-        by /= b
-        bz /= b
-        sx = s[i, 0]
-        sy = s[i, 1]
-        sz = s[i, 2]
-        u0 = sx * bx + sy * by + sz * bz
-        t = np.tanh(a)
-        sech = 1.0 / np.cosh(a)
-        # 1 − sech a = 2 sinh²(a/2) sech a, without cancellation for small a
-        sh = np.sinh(0.5 * a)
-        c = u0 * (2.0 * sh * sh * sech) + t
-        _normalise_row(s, i, sx * sech + c * bx, sy * sech + c * by, sz * sech + c * bz)
+        bx, by, bz, b = _direction(B, i)
+        x, y, z = _damped(s[i, 0], s[i, 1], s[i, 2], bx, by, bz, k1[i] * b)
+        x, y, z = _diffused(x, y, z, sigma[i], xi[i, 0], xi[i, 1])
+        before[i, 0] = x
+        before[i, 1] = y
+        before[i, 2] = z
+        x, y, z = _damped(x, y, z, bx, by, bz, k2[i] * b)
+        s[i, 0] = x
+        s[i, 1] = y
+        s[i, 2] = z
 
 
 @threaded()
-def rotate(s, xi, amplitude, magnetic):
-    """Rotate each s_i about the vector φ_i = ``amplitude[i]`` ξ_i by |φ_i|
-    (Rodrigues), in place: s' = s cos φ + (n̂×s) sin φ + n̂ (n̂·s)(1 − cos φ)."""
-    for i in nb.prange(s.shape[0]):
+def damp_from(start, B, k, magnetic, out):
+    """out = D_B(k) start per magnetic spin (:func:`_damped`, a = k|B_i|)."""
+    for i in nb.prange(start.shape[0]):
         if not magnetic[i]:
             continue
-        c = amplitude[i]
-        px = c * xi[i, 0]
-        py = c * xi[i, 1]
-        pz = c * xi[i, 2]
-        phi = np.sqrt(px * px + py * py + pz * pz)
-        if phi == 0.0:
-            continue
-        nx = px / phi
-        ny = py / phi
-        nz = pz / phi
-        sx = s[i, 0]
-        sy = s[i, 1]
-        sz = s[i, 2]
-        cp = np.cos(phi)
-        sp = np.sin(phi)
-        d = (nx * sx + ny * sy + nz * sz) * (1.0 - cp)
-        _normalise_row(s, i,
-                       sx * cp + (ny * sz - nz * sy) * sp + nx * d,
-                       sy * cp + (nz * sx - nx * sz) * sp + ny * d,
-                       sz * cp + (nx * sy - ny * sx) * sp + nz * d)
+        bx, by, bz, b = _direction(B, i)
+        x, y, z = _damped(start[i, 0], start[i, 1], start[i, 2], bx, by, bz, k[i] * b)
+        out[i, 0] = x
+        out[i, 1] = y
+        out[i, 2] = z
+
+
+def noise_amplitude(d_tau):
+    r"""σ_i of the noise step N(τ) (:func:`_diffused`) for D_i τ = ``d_tau``:
+    σ² = 2Dτ(1 + 5Dτ).
+
+    Isotropy reduces the weak error of N to the spherical harmonics: it must
+    give E P_ℓ(cos θ) = e^{−ℓ(ℓ+1)Dτ} + O(τ³) for every ℓ (θ the angle moved;
+    the heat kernel of the sphere). With P_ℓ(cos θ) = 1 − Lθ²/4 +
+    (L²/64 − L/96)θ⁴ + O(θ⁶), L = ℓ(ℓ+1), and θ = atan r, r = |ζ| for a 2-d
+    Gaussian ζ of variance σ² per component (E r² = 2σ², E r⁴ = 8σ⁴:
+    E θ² = 2σ² − 16σ⁴/3, E θ⁴ = 8σ⁴ + O(σ⁶)), the L² terms give σ² = 2Dτ at
+    leading order and the L terms σ²/2 − 5σ⁴/4 = Dτ, i.e.
+    σ² = 2Dτ(1 + 5Dτ) + O(τ³). σ² = 2Dτ alone (as a plain Gaussian rotation)
+    leaves an O(τ²) error per step: weak first order."""
+    return np.sqrt(2.0 * d_tau * (1.0 + 5.0 * d_tau))
 
 
 @nb.njit(cache=True)
@@ -130,16 +172,50 @@ def ornstein_uhlenbeck(p, xi, m, c1, c2, fix_com, out):
     return dK
 
 
-#: polynomial extrapolation to the next value from the last 1–4 (newest first)
-_EXTRAPOLATION = ((1.0,), (2.0, -1.0), (3.0, -3.0, 1.0), (4.0, -6.0, 4.0, -1.0))
+@nb.njit(cache=True, inline="always")
+def _explicit_midpoint(sx, sy, sz, bx, by, bz, c):
+    """The part of the midpoint W = s + c W × B̄ (normalised) known from s and
+    B(s) alone: s + c t + c² (t × B − |t|² s/2), t = s × B (the rest — the
+    other spins' and the lattice's motion over the step — is extrapolated)."""
+    tx = sy * bz - sz * by
+    ty = sz * bx - sx * bz
+    tz = sx * by - sy * bx
+    q = 0.5 * (tx * tx + ty * ty + tz * tz)
+    c2 = c * c
+    return (sx + c * tx + c2 * (ty * bz - tz * by - q * sx),
+            sy + c * ty + c2 * (tz * bx - tx * bz - q * sy),
+            sz + c * tz + c2 * (tx * by - ty * bx - q * sz))
 
 
-def _extrapolate_increment(history, order, rows=slice(None)):
-    c = _EXTRAPOLATION[order]
-    out = c[0] * history[-1][rows]
-    for k in range(1, len(c)):
-        out += c[k] * history[-1 - k][rows]
-    return out
+@threaded()
+def predict_midpoint(s, B, c, R0, R1, R2, R3, coef, out):
+    """out_i = (:func:`_explicit_midpoint` + Σ_k coef_k R_k,i) / |…| (magnetic rows)."""
+    for i in nb.prange(s.shape[0]):
+        sx, sy, sz = s[i, 0], s[i, 1], s[i, 2]
+        if sx == 0.0 and sy == 0.0 and sz == 0.0:
+            out[i, 0] = 0.0
+            out[i, 1] = 0.0
+            out[i, 2] = 0.0
+            continue
+        vx, vy, vz = _explicit_midpoint(sx, sy, sz, B[i, 0], B[i, 1], B[i, 2], c[i])
+        vx += coef[0] * R0[i, 0] + coef[1] * R1[i, 0] + coef[2] * R2[i, 0] + coef[3] * R3[i, 0]
+        vy += coef[0] * R0[i, 1] + coef[1] * R1[i, 1] + coef[2] * R2[i, 1] + coef[3] * R3[i, 1]
+        vz += coef[0] * R0[i, 2] + coef[1] * R1[i, 2] + coef[2] * R2[i, 2] + coef[3] * R3[i, 2]
+        x, y, z = _unit(vx, vy, vz)
+        out[i, 0] = x
+        out[i, 1] = y
+        out[i, 2] = z
+
+
+@threaded()
+def midpoint_remainder(W, s, B, c, out):
+    """out = W − :func:`_explicit_midpoint`: what it misses of the midpoint."""
+    for i in nb.prange(s.shape[0]):
+        vx, vy, vz = _explicit_midpoint(s[i, 0], s[i, 1], s[i, 2], B[i, 0], B[i, 1], B[i, 2],
+                                        c[i])
+        out[i, 0] = W[i, 0] - vx
+        out[i, 1] = W[i, 1] - vy
+        out[i, 2] = W[i, 2] - vz
 
 
 def _rng(rng):
@@ -200,20 +276,23 @@ class Langevin(CollectivePRK):
     one μ-independent variance leaves mixed-moment sublattices off the bath
     temperature), independent of μ_i under ``"lammps"`` (r_i = 1).
 
-    One step of size h (docs/thermostats.md):
+    One step of size h (docs/thermostats.md, docs/dynamics.md), in time order:
 
-    .. math:: O_s(h/2)\,O_L(h/2)\;\Phi^{\rm PRK}_h\;O_L(h/2)\,O_s(h/2)
+    .. math:: O_L(h/2)\,N(h/2)\,D^*(h/2)\;\Phi^{\rm PRK}_h\;O_L(h/2)\,D(h/2)\,N(h/2)
 
-    in time order O_s = D then N before, N then D after (a symmetric step,
-    whose end point — after D — samples the Boltzmann distribution far better
-    than a point after N);
     Φ^PRK is :class:`CollectivePRK`'s step with the precession rates
     r_i/(1+λ²) (any ``order``: its composition stages all sit inside);
     O_L(τ): p ← e^{−γτ} p + √(1−e^{−2γτ}) √(m k_B T) ξ (exact
     Ornstein–Uhlenbeck, as ASE's Langevin); D(τ): the exact damping flow about
-    the fields B(s) frozen at its start (:func:`damp`); N(τ): each spin rotated
-    by the Gaussian rotation vector √(2 D_i τ) ξ_i (:func:`rotate`). Every
-    spin update is a rotation: |s_i| stays 1 to round-off.
+    the fields frozen at its start, D*(τ) about those at its end (implicit,
+    one correction: :func:`_damped`), so that the step is symmetric; N(τ):
+    s_i ← (s_i + ζ_i)/|s_i + ζ_i| with ζ_i ⟂ s_i Gaussian of variance
+    σ_i² = 2D_iτ(1 + 5D_iτ) per direction (:func:`noise_amplitude`: weak
+    second order). Sampling is weak second order (measured, docs/benchmarks.md).
+    Between two steps with no output in between, the two bath halves are done
+    as one, O_L(h) and D(h/2) N(h) D*(h/2): equal in law to O(h³), three
+    passes over the spin terms per step. Every spin update is a rotation or a
+    normalised move: |s_i| stays 1 to round-off.
 
     Parameters
     ----------
@@ -232,8 +311,9 @@ class Langevin(CollectivePRK):
         Keep the total momentum as it is (the random and friction forces'
         sum is taken off, mass-weighted), as ASE's ``fixcm``.
     rng : numpy Generator, int seed or None
-        The random numbers; a run is reproduced by restoring
-        ``dyn.rng.bit_generator.state`` (see docs/thermostats.md).
+        The random numbers (drawn in bulk, independent of the thread count); a
+        run is reproduced by restoring ``dyn.rng.bit_generator.state`` and
+        keeping the output schedule (see docs/thermostats.md).
     hbar, precession, gyromagnetic, g, order, tol, max_iter, lattice, trajectory,
     logfile, loginterval, **kwargs
         As for :class:`CollectivePRK`. The log adds the energy the baths put
@@ -285,17 +365,48 @@ class Langevin(CollectivePRK):
 
     def _prepare(self, st):
         super()._prepare(st)
+        n = len(st.s)
         st.EB = None  # (spin energy, fields) at the current spins and q, if known
-        # the predictor's history of midpoint increments W − s, per stage
-        st.increments = [deque(maxlen=4) for _ in self.gammas]
-        st.increment_order = [0 for _ in self.gammas]
+        # after a step whose closing bath half was put off (no output between
+        # it and the next step): (spin energy, fields) at the spins then, or
+        # (None, None) without spin bath; None when nothing is pending
+        st.pending = None
+        # the predictor's history of midpoint remainders W − s − c s × B(s)
+        st.increments = deque(maxlen=4)
+        st.increment_order = 0
         st.s_start = st.s
         st.B_start = None  # fields at s_start (from the bath's last pass), if known
-        st.bath_coefficients = {}  # per half-step size: κ_i τ, √(2 D_i τ)
+        st.bath_coefficients = {}
+        st.xi_s = np.zeros((n, 2))
+        st.xi_p = np.zeros((n, 3))
+        st.s_before = np.zeros((n, 3))
+        st.no_damping = np.zeros(n)
+
+    def _coefficients(self):
+        """κ_i h, σ_i of N(h) and of N(h/2), c_i of the predictor's half step
+        (cached per h, λ, T_s: the user may change them between runs)."""
+        st = self._state
+        key = (self.dt, self.spin_damping, self.spin_temp)
+        coef = st.bath_coefficients.get(key)
+        if coef is None:
+            kappa_h = (self.spin_damping * self.dt / self.hbar) * st.rate
+            d_h = self.spin_temp * kappa_h  # D_i h, D_i = κ_i k_B T_s
+            c = (0.5 * self.gammas[0] * self.dt * self.sigma / self.hbar) * st.rate
+            if len(st.bath_coefficients) > 8:
+                st.bath_coefficients.clear()
+            coef = st.bath_coefficients[key] = (kappa_h, noise_amplitude(d_h),
+                                                noise_amplitude(0.5 * d_h), c)
+        return coef
 
     # -- the step -------------------------------------------------------------------
 
     def _step(self, count=False):
+        # The closing bath half of this step may be merged into the opening
+        # half of the next when nobody sees the state in between: inside run()
+        # (count), not the run's last step, no observer due after it.
+        self._defer = (count and self.nsteps + 1 < getattr(self, "max_steps", 0)
+                       and not self._observer_due(self.nsteps + 1)
+                       and not self.atoms.constraints)
         saved = (self.bath_energy_lattice, self.bath_energy_spin,
                  self.rng.bit_generator.state)
         try:
@@ -306,97 +417,142 @@ class Langevin(CollectivePRK):
             self.bath_energy_lattice, self.bath_energy_spin = saved[:2]
             self.rng.bit_generator.state = saved[2]
             raise
+        finally:
+            self._defer = False
 
     def _substep(self, h, stage, want_energy):
-        half = 0.5 * self.dt
         st = self._state
         if stage == 0:
-            self._spin_bath(half, first=True)
-            self._lattice_bath(half)
+            self._opening_bath()
         st.s_start = st.s
         st.B_start = st.EB[1] if stage == 0 and st.EB is not None else None
         result = super()._substep(h, stage, want_energy)
         st.EB = None
         if stage == len(self.gammas) - 1:
-            self._lattice_bath(half)
-            self._spin_bath(half, first=False)
+            self._closing_bath()
         return result
 
-    def _predict(self, stage):
-        """The midpoint spins predicted as W = s + (h/2) c s × B(s) + R, R
-        extrapolated from the last steps' remainders: the baths move the spins
-        between steps by random amounts, which extrapolating W itself (as
-        CollectivePRK does) would carry into the prediction."""
+    def _spin_bath_on(self):
+        return self.magnetic and self.spin_damping > 0.0
+
+    def _opening_bath(self):
+        r"""The bath before the collective step: O_L(h/2) and, from the output
+        point m, N(h/2) then D*(h/2) — the damping flow about the fields at its
+        *end* y (implicit: y₀ = D_{B(m)} c, y = D_{B(y₀)} c, c = N(h/2) m).
+        After a step whose closing half was put off (``pending``), the whole
+        bath between the two collective steps: O_L(h) and, in time order,
+        D(h/2) N(h) D*(h/2) (D: see :meth:`_closing_bath`), y₀ from the
+        fields at the bath's start."""
         st = self._state
-        history = st.increments[stage]
+        pending = st.pending
+        st.pending = None
+        self._lattice_bath(self.dt if pending is not None else 0.5 * self.dt)
+        if not self._spin_bath_on():
+            return
+        kappa_h, sig_h, sig_half, _ = self._coefficients()
+        noisy = self.spin_temp > 0.0
+        if pending is not None:
+            E0, B0 = pending
+            k1, sigma = 0.5 * kappa_h, sig_h
+        else:
+            if st.EB is None:
+                st.EB = self._spin_energy_fields()
+            E0, B0 = st.EB
+            k1, sigma = st.no_damping, sig_half
+        if noisy:
+            self.rng.standard_normal(out=st.xi_s)
+        else:
+            sigma = st.no_damping
+        mag = self.ev.magnetic
+        bath_block(st.s, st.s_before, B0, k1, sigma, st.xi_s, 0.5 * kappa_h, mag)
+        # y₀ = D_{B0}(h/2) c is in st.s; the fields at y₀ give the corrector
+        B1 = self._spin_energy_fields(energy=False)[1]
+        damp_from(st.s_before, B1, 0.5 * kappa_h, mag, st.s)
+        st.carry_s[:] = 0.0  # the spins were replaced: no rounding error to carry
+        st.EB = self._spin_energy_fields()  # the bath energy; fields for the predictor
+        self.bath_energy_spin += st.EB[0] - E0
+
+    def _closing_bath(self):
+        r"""The bath after the collective step: O_L(h/2), D(h/2) about the fields
+        at its start, N(h/2) — or nothing yet if the next step's opening half
+        takes over (see :meth:`_step`)."""
+        st = self._state
+        on = self._spin_bath_on()
+        EB = self._spin_energy_fields() if on else (None, None)
+        if self._defer:
+            st.pending = EB
+            st.EB = EB if on else None
+            return
+        self._lattice_bath(0.5 * self.dt)
+        if not on:
+            return
+        kappa_h, _, sig_half, _ = self._coefficients()
+        sigma = sig_half
+        if self.spin_temp > 0.0:
+            self.rng.standard_normal(out=st.xi_s)
+        else:
+            sigma = st.no_damping
+        bath_block(st.s, st.s_before, EB[1], 0.5 * kappa_h, sigma, st.xi_s, st.no_damping,
+                   self.ev.magnetic)
+        st.carry_s[:] = 0.0
+        st.EB = self._spin_energy_fields()
+        self.bath_energy_spin += st.EB[0] - EB[0]
+
+    def _predict(self, stage):
+        """The midpoint spins predicted as W = s + c t + c²(t × B − |t|² s/2) + R
+        (t = s × B(s), c = (h/2)σ r/(ħ(1+λ²))), R extrapolated from the last steps' remainders: the
+        baths move the spins between steps by random amounts, which
+        extrapolating W itself (as CollectivePRK does) would carry into the
+        prediction."""
+        st = self._state
+        history = st.increments
         if stage != 0 or not history or st.B_start is None:
             return super()._predict(stage)
-        W = st.s + self._explicit_half_step(st.s, st.B_start)
-        W += _extrapolate_increment(history, st.increment_order[stage])
-        norm = np.sqrt(np.einsum("ij,ij->i", W, W))
-        np.divide(W, norm[:, None], out=W, where=norm[:, None] > 0.0)
+        coef = kernels._EXTRAPOLATION[min(st.increment_order, len(history) - 1)]
+        R = kernels._last_four(history)
+        W = np.empty_like(st.s)
+        predict_midpoint(st.s, st.B_start, self._coefficients()[3], *R, coef, W)
         return W
-
-    def _explicit_half_step(self, s, B):
-        c = (0.5 * self.gammas[0] * self.dt * self.sigma / self.hbar) * self._state.rate
-        return c[:, None] * np.cross(s, B)
 
     def _remember_midpoint(self, stage, W):
         super()._remember_midpoint(stage, W)
         st = self._state
         if stage != 0:
             return
-        history = st.increments[stage]
-        if st.B_start is None:
+        history = st.increments
+        if st.B_start is None or not self._spin_bath_on():
             history.clear()
             return
-        R = W - st.s_start - self._explicit_half_step(st.s_start, st.B_start)
+        R = np.empty_like(W)
+        midpoint_remainder(W, st.s_start, st.B_start, self._coefficients()[3], R)
         if history:
-            rows = st.probe
-            errors = [np.abs(_extrapolate_increment(history, k, rows) - R[rows]).max()
-                      for k in range(min(len(history), 4))]
-            st.increment_order[stage] = int(np.argmin(errors))
+            st.increment_order = kernels.best_extrapolation_order(history, R, st.probe)
         history.append(R)
 
-    def _spin_bath(self, tau, first):
-        """O_s(τ): D(τ) then N(τ) (``first``), or N(τ) then D(τ); adds its energy
-        change to ``bath_energy_spin``."""
-        st = self._state
-        if not self.magnetic or self.spin_damping == 0.0:
-            return
-        noisy = self.spin_temp > 0.0
-        if st.EB is None:  # the fields are needed now if D comes first (or N is idle)
-            st.EB = self._spin_energy_fields(fields=first or not noisy)
-        E0, B = st.EB
-        key = (tau, self.spin_damping, self.spin_temp)  # the user may change them
-        coef = st.bath_coefficients.get(key)
-        if coef is None:  # κ_i τ and the noise amplitude √(2 D_i τ), D_i = κ_i k_B T_s
-            kappa_tau = (self.spin_damping * tau / self.hbar) * st.rate
-            if len(st.bath_coefficients) > 8:
-                st.bath_coefficients.clear()
-            coef = st.bath_coefficients[key] = (kappa_tau,
-                                                np.sqrt(2.0 * self.spin_temp * kappa_tau))
-        mag = self.ev.magnetic
-        if first:
-            damp(st.s, B, coef[0], mag)
-        if noisy:
-            rotate(st.s, self.rng.standard_normal(st.s.shape), coef[1], mag)
-        if not first:
-            damp(st.s, self._spin_energy_fields()[1] if noisy else B, coef[0], mag)
-        st.carry_s[:] = 0.0  # the spins were replaced: no rounding error to carry
-        # energy and fields: the fields serve the next D, or the predictor
-        st.EB = self._spin_energy_fields()
-        self.bath_energy_spin += st.EB[0] - E0
+    def _spin_energy_fields(self, energy=True):
+        """(spin energy or None, fields) at the current spins: one pass.
 
-    def _spin_energy_fields(self, fields=True):
-        """(spin energy, fields or None) at the current spins: one pass."""
+        Operators of the form B_i = Σ_j c_ij s_j (``linear_pairs``: exchange)
+        give their fields alone, and their energy as −½ Σ_i s_i·B_i: the
+        energy of a quadratic form up to a constant (Exchange's offset), which
+        cancels in the differences at fixed positions that the bath energy
+        is made of. Other operators give both from ``add``."""
         st = self._state
-        if not fields:
-            res = self.ev.spin(st.ops, st.s, _E)
-            return float(sum(res.energy_terms.values())), None
-        B = np.zeros_like(st.s)
-        res = self.ev.spin(st.ops, st.s, _EB, magnetic_forces=B)
-        return float(sum(res.energy_terms.values())), B
+        s = st.s
+        B = np.zeros_like(s)
+        E = 0.0
+        others = []
+        for op in st.ops:
+            if hasattr(op, "linear_pairs"):
+                op.field(s, B)
+            else:
+                others.append(op)
+        if energy and len(others) < len(st.ops):
+            E = -0.5 * float(np.einsum("ij,ij->", s, B))
+        want = _EB if energy else _B
+        for op in others:
+            E += op.add(s, want, B, _NO_FORCES, _NO_ENERGIES)[0]
+        return (float(E) if energy else None), B
 
     def _lattice_bath(self, tau):
         """O_L(τ): the exact Ornstein–Uhlenbeck step of the momenta; adds the
@@ -406,7 +562,7 @@ class Langevin(CollectivePRK):
             return
         c1 = np.exp(-self.fr * tau)
         c2 = np.sqrt(-np.expm1(-2.0 * self.fr * tau) * self.temp)
-        xi = self.rng.standard_normal(st.p.shape)
+        xi = self.rng.standard_normal(out=st.xi_p)
         p = np.empty_like(st.p)
         m = self.masses[:, 0]
         dK = ornstein_uhlenbeck(st.p, xi, m, c1, c2, self.fix_com, p)

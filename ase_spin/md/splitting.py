@@ -14,7 +14,7 @@ import numpy as np
 
 from ase import units
 
-from ..terms.base import linear_pair_field
+from ..terms.base import compile_with, linear_pair_field
 from . import kernels
 from .base import SpinLatticeDynamics, UnstableStepError
 
@@ -110,7 +110,8 @@ class SuzukiTrotter(SpinLatticeDynamics):
             pairs, J = operators[0].linear_pairs()
             angle = rotate_sweeps(pairs.row, pairs.j, J, s, tau, exact)
         else:
-            angle = rotate_sweeps_sites(s, tau, exact, *_site_arguments(operators))
+            functions, data = _site_arguments(operators)
+            angle = rotate_sweeps_sites(functions)(s, tau, exact, *data)
         if not angle <= MAX_SWEEP_ROTATION:
             raise UnstableStepError(
                 f"a spin was to rotate by {angle:.3g} rad in one sweep (h/4·|B|/ħ) at step "
@@ -132,20 +133,24 @@ _NO_DATA = (np.zeros(0),)
 
 
 def _site_arguments(operators):
-    """(f0, d0, …, f5, d5): every operator's per-spin field function and data,
-    padded with a function giving zero."""
+    """((f0, …, f5), (d0, …, d5)): every operator's per-spin field function and
+    its data, padded with a function giving zero."""
     if len(operators) > MAX_SITE_TERMS:
         raise ValueError(f"SuzukiTrotter takes at most {MAX_SITE_TERMS} spin terms, "
                          f"got {len(operators)}")
-    args = []
+    functions = []
+    data = []
     for op in operators:
         if op.site is None:
             raise ValueError(f"SuzukiTrotter needs each spin term's field spin by spin; "
                              f"{type(op).__name__} does not offer it (its 'site')")
-        args.extend(op.site)
+        f, d = op.site
+        functions.append(f)
+        data.append(d)
     for _ in range(MAX_SITE_TERMS - len(operators)):
-        args.extend((_no_site, _NO_DATA))
-    return args
+        functions.append(_no_site)
+        data.append(_NO_DATA)
+    return tuple(functions), tuple(data)
 
 
 @nb.njit(cache=True, inline="always")
@@ -204,12 +209,10 @@ def rotate_sweeps(row, nbr, J, s, tau, exact):
     return np.sqrt(largest)
 
 
-@nb.njit
-def rotate_sweeps_sites(s, tau, exact, f0, d0, f1, d1, f2, d2, f3, d3, f4, d4, f5, d5):
+def _sweeps_sites(s, tau, exact, d0, d1, d2, d3, d4, d5):
     """:func:`rotate_sweeps` for any spin terms: B_i is the sum of each term's
-    per-spin field ``f(i, s, d)`` at the spins as they are. (Not cached: numba
-    cannot cache a function of functions; compiled once per process and
-    combination of terms.)"""
+    per-spin field ``f_k(i, s, d_k)`` at the spins as they are (the f_k are
+    bound as globals by :func:`rotate_sweeps_sites`)."""
     n = s.shape[0]
     largest = 0.0
     for sweep in range(2):
@@ -217,14 +220,30 @@ def rotate_sweeps_sites(s, tau, exact, f0, d0, f1, d1, f2, d2, f3, d3, f4, d4, f
             i = a if sweep == 0 else n - 1 - a
             if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
                 continue
-            t = f0(i, s, d0)
-            t = _plus(t, f1(i, s, d1))
-            t = _plus(t, f2(i, s, d2))
-            t = _plus(t, f3(i, s, d3))
-            t = _plus(t, f4(i, s, d4))
-            tx, ty, tz = _plus(t, f5(i, s, d5))
+            t = f0(i, s, d0)  # noqa: F821 - bound per combination of terms
+            t = _plus(t, f1(i, s, d1))  # noqa: F821
+            t = _plus(t, f2(i, s, d2))  # noqa: F821
+            t = _plus(t, f3(i, s, d3))  # noqa: F821
+            t = _plus(t, f4(i, s, d4))  # noqa: F821
+            tx, ty, tz = _plus(t, f5(i, s, d5))  # noqa: F821
             c = tau[i]
             t2 = _rotate(s, i, c * tx, c * ty, c * tz, exact)
             if not t2 <= largest and largest == largest:  # a NaN stays
                 largest = t2
     return np.sqrt(largest)
+
+
+_SWEEPS = {}
+
+
+def rotate_sweeps_sites(functions):
+    """The compiled :func:`_sweeps_sites` for six per-spin field functions,
+    called as ``(s, tau, exact, d0, …, d5)``. Compiled once per combination of
+    terms and kept in numba's disk cache (a kernel taking the functions as
+    arguments cannot be cached, and was compiled again in every process)."""
+    sweeps = _SWEEPS.get(functions)
+    if sweeps is None:
+        names = "_".join(f.py_func.__name__.strip("_") for f in functions if f is not _no_site)
+        sweeps = _SWEEPS[functions] = compile_with(
+            _sweeps_sites, {f"f{k}": f for k, f in enumerate(functions)}, names[:60])
+    return sweeps

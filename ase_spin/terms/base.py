@@ -9,7 +9,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from ..neighbors import balanced_chunks, reduce_threads
+from ..neighbors import balanced_chunks, reduce_threads, sum_over_threads
+from ..threads import prange_only
 from ..validate import real_scalar
 
 __all__ = ["Term", "SpinTerm", "SpinOperator", "PairSpinTerm", "PairOperator", "System",
@@ -344,7 +345,7 @@ def compile_site_pass(field, energy, name):
     By, Bz)`` and ``energy(i, s, data) -> E_i``, cached on disk under a name
     that changes with their code (a cached skeleton must not outlive an edit
     of the functions it calls)."""
-    return _compile_with(_site_pass, {"site_field": field, "site_energy": energy}, name)
+    return compile_with(_site_pass, {"site_field": field, "site_energy": energy}, name)
 
 
 class SiteOperator(SpinOperator):
@@ -527,7 +528,7 @@ def _pair_pass(nthreads, row, nbr, half, s, data, B, F, energies, want_b, want_f
         reduce_threads(bbuf, B)
         reduce_threads(fbuf, F)
         reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
-    return acc.sum(axis=0)
+    return sum_over_threads(acc)
 
 
 def compile_pair_pass(field, energy, name):
@@ -536,25 +537,38 @@ def compile_pair_pass(field, energy, name):
     ``reverse`` when a is the pair's second atom) and ``energy(k, i, j, s,
     data) -> (e, fx, fy, fz, dx, dy, dz)``, cached on disk under a name that
     changes with their code."""
-    return _compile_with(_pair_pass, {"pair_field": field, "pair_energy": energy}, name,
-                         parallel=True)
+    return compile_with(_pair_pass, {"pair_field": field, "pair_energy": energy}, name,
+                        parallel=True)
 
 
-def _compile_with(skeleton, functions, name, parallel=False):
+def compile_with(skeleton, functions, name, parallel=False):
+    """``skeleton`` compiled with the compiled ``functions`` (a mapping from
+    the global names it calls to dispatchers) bound in, cached on disk.
+
+    numba cannot cache a kernel that takes functions as arguments or is built
+    in a closure; a copy of the skeleton's code with the functions as globals
+    and a name of its own can be. The name carries a hash of the functions'
+    names and code, so a cached skeleton does not outlive an edit of the
+    functions it calls, and two combinations never share a cache entry."""
     import hashlib
     import types
 
     code = hashlib.sha1()
-    for f in functions.values():
-        code.update(f.py_func.__code__.co_code)
-        code.update(repr(f.py_func.__code__.co_consts).encode())
+    for key, f in sorted(functions.items()):
+        py = f.py_func
+        code.update(f"{key}={py.__module__}.{py.__qualname__}".encode())
+        code.update(py.__code__.co_code)
+        code.update(repr((py.__code__.co_consts, py.__code__.co_names)).encode())
     glob = dict(skeleton.__globals__, **functions)
     fn = types.FunctionType(skeleton.__code__, glob, f"{skeleton.__name__}_{name}")
     fn.__qualname__ = f"{skeleton.__name__}_{name}_{code.hexdigest()[:12]}"
     fn.__module__ = skeleton.__module__
     if parallel:
-        return nb.njit(cache=True, parallel=True, error_model="numpy")(fn)
+        return nb.njit(cache=True, parallel=prange_only(), error_model="numpy")(fn)
     return nb.njit(cache=True)(fn)
+
+
+_compile_with = compile_with  # its former name
 
 
 class PairSpinTerm(SpinTerm):

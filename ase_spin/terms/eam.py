@@ -10,7 +10,8 @@ import numba as nb
 import numpy as np
 
 from .. import threads
-from ..neighbors import balanced_chunks, reduce_threads, reduce_threads_serial, separation
+from ..neighbors import (balanced_chunks, reduce_threads, reduce_threads_serial, separation,
+                         sum_over_threads)
 from ..threads import threaded
 from .base import PairParameters, Term
 from .eam_files import (EAMFileError, lammps_arrays, lammps_potential_path, read_potential,
@@ -388,4 +389,4 @@ def _pair_kernel(nthreads, pos, row, nbr, image, images, types, rhor, z2r, t_rho
         acc[c, 6] = vxy
     reduce_threads(fbuf, forces)
     reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
-    return acc.sum(axis=0)
+    return sum_over_threads(acc)

@@ -6,7 +6,8 @@ import numba as nb
 import numpy as np
 
 from .. import threads
-from ..neighbors import balanced_chunks, reduce_threads, reduce_threads_serial, separation
+from ..neighbors import (balanced_chunks, reduce_threads, reduce_threads_serial, separation,
+                         sum_over_threads)
 from ..threads import threaded
 from ..validate import flag, length, real_scalar
 from .base import (Parameterised, SpinOperator, SpinTerm, is_pair_mapping,
@@ -541,7 +542,7 @@ def _spin_pass_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
         acc[t, 4] = vyz
         acc[t, 5] = vxz
         acc[t, 6] = vxy
-    out = acc.sum(axis=0)
+    out = sum_over_threads(acc)
     return out[0], out[1], out[2], out[3], out[4], out[5], out[6]
 
 
@@ -633,7 +634,7 @@ def _spin_pass_half_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
     reduce_threads(fbuf, F)
     reduce_threads(bbuf, B)
     reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
-    return acc.sum(axis=0)
+    return sum_over_threads(acc)
 
 
 @threaded(always=True, reduce_threads=lambda: reduce_threads_serial)
@@ -733,4 +734,4 @@ def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B
     reduce_threads(fbuf, F)
     reduce_threads(bbuf, B)
     reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
-    return acc.sum(axis=0)
+    return sum_over_threads(acc)

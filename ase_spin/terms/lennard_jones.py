@@ -6,7 +6,8 @@ import numba as nb
 import numpy as np
 
 from .. import threads
-from ..neighbors import balanced_chunks, reduce_threads, reduce_threads_serial, separation
+from ..neighbors import (balanced_chunks, reduce_threads, reduce_threads_serial, separation,
+                         sum_over_threads)
 from ..threads import threaded
 from ..validate import length
 from .base import Term, is_pair_mapping, pair_values, real_or_none, resolve_pairs
@@ -252,4 +253,4 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
         acc[c, 6] = vxy
     reduce_threads(fbuf, forces)
     reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
-    return acc.sum(axis=0)
+    return sum_over_threads(acc)

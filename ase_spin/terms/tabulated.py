@@ -10,7 +10,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from ..validate import length, real_array
 from .base import pair_key
@@ -74,6 +73,8 @@ class Tabulated(Coupling):
         self.r = _frozen(r)
         self.J = _frozen(J)
         self.rc = float(r[-1])
+        from scipy.interpolate import CubicSpline  # here: a third of ase_spin's import time
+
         self._spline = CubicSpline(r, J, bc_type=("natural", (1, 0.0)))
         self._dspline = self._spline.derivative()
         self._slope0 = float(self._dspline(r[0]))

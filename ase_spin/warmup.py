@@ -1,0 +1,182 @@
+"""Compile the kernels ahead of time: ``ase-spin compile``.
+
+numba compiles each kernel the first time a process calls it and keeps the
+machine code in its disk cache (see :mod:`ase_spin.compilation`). This module
+makes those first calls on purpose, so that a later run starts warm: on a
+cluster's login node before jobs are submitted, in a container image, after an
+install. It runs, for every scene, one evaluation through the calculator
+(energy, forces, stress, magnetic forces) and two steps of an integrator,
+writing nothing: exactly the kernels that scene needs.
+
+Without input files it runs a built-in set: fcc Co with Lennard-Jones and
+Bethe–Slater exchange, alone and with a Zeeman field and uniaxial anisotropy,
+at 108 atoms (the serial kernels of small systems) and 2048 atoms (the
+threaded ones), through ``CollectivePRK`` (orders 2 and 4), ``SuzukiTrotter``
+and ``Langevin``. Other terms (EAM, DMI, ...) compile on first use, or give
+their input file.
+
+The tasks after the first run in ``jobs`` processes at once (numba compiles
+on one core); the first one, alone, compiles the kernels every scene shares.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+from pathlib import Path
+
+__all__ = ["BUILTIN", "compile_kernels"]
+
+_BATH = {"temperature_K": 100.0, "spin_damping": 0.01, "friction": 0.01, "rng": 0}
+
+#: The built-in tasks: (label, cells per edge (4n³ atoms), with the field and
+#: anisotropy, integrator, keywords). The first runs alone (the kernels every
+#: scene shares); then the small and the large systems, one process each
+#: (serial kernels for one, threaded for the other: little shared work).
+BUILTIN = [
+    [("calculator, 108 atoms", 3, False, None, {})],
+    [("CollectivePRK, 108 atoms", 3, False, "CollectivePRK", {}),
+     ("CollectivePRK order 4, 108 atoms", 3, False, "CollectivePRK", {"order": 4}),
+     ("SuzukiTrotter, 108 atoms", 3, False, "SuzukiTrotter", {}),
+     ("Langevin, 108 atoms", 3, False, "Langevin", _BATH),
+     ("CollectivePRK + field + anisotropy, 108 atoms", 3, True, "CollectivePRK", {}),
+     ("SuzukiTrotter + field + anisotropy, 108 atoms", 3, True, "SuzukiTrotter", {})],
+    [("calculator, 2048 atoms", 8, False, None, {}),
+     ("CollectivePRK, 2048 atoms", 8, False, "CollectivePRK", {}),
+     ("CollectivePRK order 4, 2048 atoms", 8, False, "CollectivePRK", {"order": 4}),
+     ("Langevin, 2048 atoms", 8, False, "Langevin", _BATH),
+     ("CollectivePRK + field + anisotropy, 2048 atoms", 8, True, "CollectivePRK", {})],
+]
+
+
+def _exercise(atoms, dyn):
+    atoms.get_potential_energy()
+    atoms.get_forces()
+    atoms.get_stress()
+    atoms.calc.get_magnetic_forces(atoms)
+    if dyn is not None:
+        dyn.run(2)
+
+
+def _builtin(task):
+    import ase_spin
+    from ase import units
+
+    from .scenes import fcc_cobalt, field_anisotropy_terms
+
+    label, n, extra, integrator, keywords = task
+    atoms = fcc_cobalt(n, extra=field_anisotropy_terms() if extra else ())
+    atoms.rattle(0.02, seed=1)
+    dyn = None
+    if integrator is not None:
+        dyn = getattr(ase_spin, integrator)(atoms, 0.1 * units.fs, **keywords)
+    _exercise(atoms, dyn)
+
+
+def _input(path):
+    from . import cli
+
+    path = Path(path).resolve()
+    spec = cli.load_input(path)
+    with cli._in_folder(path.parent):
+        atoms = cli.build_scene(spec)
+        dyn, _ = cli._integrator(atoms, spec, {"trajectory": None, "log": None}, 1, 2)
+        _exercise(atoms, dyn)
+
+
+def _run(kind, task):
+    """One task in this process: (label, seconds, kernels compiled)."""
+    from numba.core import event
+
+    compiled = []
+
+    class Count(event.Listener):
+        def on_start(self, ev):
+            pass
+
+        def on_end(self, ev):
+            d = ev.data.get("dispatcher") if isinstance(ev.data, dict) else None
+            module = getattr(getattr(d, "py_func", None), "__module__", "") or ""
+            if module.startswith("ase_spin"):
+                compiled.append(d)
+
+    listener = Count()
+    t0 = time.perf_counter()
+    with event.install_listener("numba:compile", listener):
+        if kind == "builtin":
+            _builtin(task)
+            label = task[0]
+        else:
+            _input(task)
+            label = str(task)
+    return label, time.perf_counter() - t0, len(compiled)
+
+
+def _run_chain(chain):
+    return [_run(kind, task) for kind, task in chain]
+
+
+def compile_kernels(inputs=(), jobs=1, out=None):
+    """Compile (or load from numba's cache) every kernel the scenes of the
+    TOML ``inputs`` use, or the built-in set if there are none; after the
+    first scene, up to ``jobs`` processes at once. Prints one line per scene
+    and where the cache is; returns [(label, seconds, kernels compiled)]."""
+    out = out or sys.stdout
+    if inputs:
+        chains = [[("input", str(p))] for p in inputs]
+    else:
+        chains = [[("builtin", task) for task in chain] for chain in BUILTIN]
+    from . import compilation
+    from .neighbors import balanced_chunks
+
+    print(f"compiling ase_spin's kernels for {sum(map(len, chains))} scene(s) into "
+          f"{_where(compilation.cache_dir(balanced_chunks))} (CPU: {_cpu()})",
+          file=out, flush=True)
+    t0 = time.perf_counter()
+    results = []
+    first, rest = chains[0], chains[1:]
+    for result in _run_chain(first):
+        results.append(result)
+        _report(result, out)
+    if jobs > 1 and len(rest) > 1:
+        # a fresh interpreter per worker (spawn): no numba state or threads forked
+        with ProcessPoolExecutor(min(jobs, len(rest)), mp_context=get_context("spawn")) as pool:
+            for chain in pool.map(_run_chain, rest):
+                for result in chain:
+                    results.append(result)
+                    _report(result, out)
+    else:
+        for chain in rest:
+            for result in _run_chain(chain):
+                results.append(result)
+                _report(result, out)
+    total = sum(r[2] for r in results)
+    print(f"done in {time.perf_counter() - t0:.1f} s: {total} kernel(s) compiled, the rest "
+          "loaded from the cache", file=out, flush=True)
+    return results
+
+
+def _report(result, out):
+    label, seconds, n = result
+    print(f"  {label}: {seconds:.1f} s, {n} kernel(s) compiled", file=out, flush=True)
+
+
+def _where(path):
+    if os.path.basename(path.rstrip(os.sep)) == "__pycache__":
+        return f"the __pycache__ folders under {Path(__file__).parent}"
+    return path
+
+
+def _cpu():
+    """The CPU numba compiles for: a cached kernel is used only on this one
+    (NUMBA_CPU_NAME overrides it, e.g. 'generic' for a mixed cluster)."""
+    from numba.core import config
+
+    if config.CPU_NAME:
+        return f"{config.CPU_NAME} (NUMBA_CPU_NAME)"
+    import llvmlite.binding as ll
+
+    return ll.get_host_cpu_name()
