@@ -1,6 +1,6 @@
 """Stress tests of CollectivePRK: where it stops working, and how it says so.
 
-    python benchmarks/stress.py [--n 5] [--steps 2000]
+    python benchmarks/stress.py [--n 5] [--steps 2000] [--solver auto]
 
 For fcc Co (peers.md scene unless stated), each case runs `--steps` steps and
 reports how it ended: "ok" with the energy error and spin-length error, or the
@@ -8,6 +8,8 @@ error raised (its class and first line). Cases:
 
 - dt sweep at 100 K, up to and past failure: which limit is hit first, the
   spin iteration (SpinConvergenceError) or the lattice (UnstableStepError)?
+  (``--solver jacobi``: the midpoint solver before the locally exact and
+  Anderson-accelerated ones.)
 - hot lattices: 1000, 2000 and 4000 K at 0.5 fs;
 - random spins (a paramagnet) at 0.5 fs;
 - strong compression: the lattice constant scaled by 0.9 and 0.85;
@@ -34,8 +36,11 @@ from ase_spin.scenes import cone, fcc_cobalt  # noqa: E402
 from machine import describe  # noqa: E402
 
 
+SOLVER = "auto"
+
+
 def run_case(name, atoms, dt_fs, steps):
-    dyn = CollectivePRK(atoms, dt_fs * units.fs)
+    dyn = CollectivePRK(atoms, dt_fs * units.fs, solver=SOLVER)
     t0 = time.perf_counter()
     try:
         e0 = dyn.get_total_energy()
@@ -60,15 +65,19 @@ def main(argv=None):
     parser = argparse.ArgumentParser()
     parser.add_argument("--n", type=int, default=5)
     parser.add_argument("--steps", type=int, default=2000)
+    parser.add_argument("--solver", default="auto")
     args = parser.parse_args(argv)
+    global SOLVER
+    SOLVER = args.solver
     n, steps = args.n, args.steps
     print(describe())
-    print(f"# fcc Co, {4 * n**3} atoms, {steps} steps per case")
-    for dt in (0.5, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0):
+    print(f"# fcc Co, {4 * n**3} atoms, {steps} steps per case, solver {SOLVER!r}, "
+          f"load {os.getloadavg()[0]:.2f}")
+    for dt in (0.5, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0):
         run_case("dt sweep, 100 K", fcc_cobalt(n), dt, steps)
     for frozen_dt in (4.0, 6.0, 8.0):
         atoms = fcc_cobalt(n)
-        dyn = CollectivePRK(atoms, frozen_dt * units.fs, lattice="frozen")
+        dyn = CollectivePRK(atoms, frozen_dt * units.fs, lattice="frozen", solver=SOLVER)
         try:
             dyn.run(steps)
             print(f"{'dt sweep, frozen lattice':38s} dt {frozen_dt:5.2f} fs  ok "

@@ -45,8 +45,8 @@ EXCHANGE = (0.0446928, 0.003496, 1.4885, 4.0, False)
 # (label, kind, options, steps in fs or in units of the chain's time)
 FCC_METHODS = [
     ("CollectivePRK order 2", "prk", {"order": 2}, [0.5, 0.25, 0.1, 0.05, 0.025]),
-    ("CollectivePRK order 4", "prk", {"order": 4}, [1.0, 0.5, 0.25, 0.125]),
-    ("CollectivePRK order 6", "prk", {"order": 6}, [1.0, 0.5, 0.25, 0.125]),
+    ("CollectivePRK order 4", "prk", {"order": 4}, [2.0, 1.5, 1.0, 0.5, 0.25, 0.125]),
+    ("CollectivePRK order 6", "prk", {"order": 6}, [2.0, 1.0, 0.5, 0.25, 0.125]),
     ("SuzukiTrotter (Cayley)", "st", {"rotation": "cayley"}, [0.5, 0.2, 0.1, 0.05, 0.025]),
     ("LAMMPS fix nve/spin", "lammps", {}, [0.5, 0.2, 0.1, 0.05, 0.025, 0.01, 0.0025]),
 ]
@@ -162,7 +162,7 @@ def equal_error_table(rows, reference="LAMMPS fix nve/spin"):
     ase_spin method's wall time with the reference's."""
     labels = [label for label in dict.fromkeys(r[0] for r in rows) if label != reference]
     lines = []
-    for target in (1e-2, 3e-3, 1e-3, 3e-4, 1e-4, 1e-5, 1.1e-6):
+    for target in (4e-2, 1e-2, 3e-3, 1e-3, 3e-4, 1e-4, 1e-5, 1.1e-6):
         t_ref = time_at_error(rows, reference, target)
         times = {label: time_at_error(rows, label, target) for label in labels}
         times = {k: v for k, v in times.items() if v is not None}

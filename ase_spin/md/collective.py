@@ -28,6 +28,14 @@ _MAX_OUTER = 12
 #: Tightest and loosest stopping tolerances of the midpoint iteration (on unit vectors).
 TOL_RANGE = (1e-16, 1e-3)
 
+#: The midpoint solvers: (Anderson memory, locally exact sweep).
+SOLVERS = {"anderson": (kernels.MEMORY, True), "local": (0, True), "jacobi": (0, False)}
+# "auto": Jacobi sweeps (the cheapest) while their observed contraction per sweep
+# stays below _AUTO_SWITCH, else the Anderson solver from then on at that stage and
+# step size; a Jacobi solve not done in _AUTO_JACOBI_SWEEPS is redone by it.
+_AUTO_SWITCH = 0.4
+_AUTO_JACOBI_SWEEPS = 40
+
 
 class CollectivePRK(SpinLatticeDynamics):
     r"""Spin–lattice dynamics with the collective symplectic PRK method.
@@ -83,6 +91,18 @@ class CollectivePRK(SpinLatticeDynamics):
     max_iter : int
         Midpoint iterations allowed per solve (default 100). Not converging
         raises :class:`SpinConvergenceError`; the atoms keep the last good state.
+    solver : "auto", "anderson", "local" or "jacobi"
+        How the midpoint equation is solved (docs/dynamics.md, "The midpoint
+        solver"). "jacobi": the fixed-point iteration W ← (2s + c W × B̄(W))/|…|,
+        cheapest per sweep but contracting only while c|B̄| ≲ 1 (fails from
+        about 3 fs on fcc Co). "local": each sweep solves every spin's own
+        equation exactly in the field of the others (a Cayley rotation),
+        contracting at any step size in the linear analysis. "anderson": the
+        local sweep with Anderson acceleration (memory 3): fewest sweeps at
+        every step size, converges until the lattice, not the spins, limits
+        the step. "auto" (the default): Jacobi while it contracts by less
+        than 0.4 per sweep, else "anderson" (at that stage and step size), a
+        failed Jacobi solve redone by it.
     lattice : "moving" or "frozen"
         ``"frozen"`` integrates the spins only (as does fixing every atom with
         ``FixAtoms``); pair geometry is then computed once.
@@ -105,17 +125,31 @@ class CollectivePRK(SpinLatticeDynamics):
 
     def __init__(self, atoms, timestep, *, hbar=None, precession="moment",
                  gyromagnetic="lammps", g=2.0, order=2, composition=None, tol=None,
-                 max_iter=None, lattice="moving", trajectory=None, logfile=None,
+                 max_iter=None, solver=None, lattice="moving", trajectory=None, logfile=None,
                  loginterval=1, **kwargs):
         self.tol = 1e-15 if tol is None else real_scalar(tol, "tol")
         if not TOL_RANGE[0] <= self.tol <= TOL_RANGE[1]:
             raise ValueError(f"tol must lie between {TOL_RANGE[0]:g} and {TOL_RANGE[1]:g} "
                              f"(a change of a unit spin component), got {self.tol:g}")
         self.max_iter = 100 if max_iter is None else integer(max_iter, "max_iter", minimum=1)
+        self.solver = "auto" if solver is None else solver
         super().__init__(atoms, timestep, hbar=hbar, precession=precession,
                          gyromagnetic=gyromagnetic, g=g, order=order,
                          composition=composition, lattice=lattice, trajectory=trajectory,
                          logfile=logfile, loginterval=loginterval, **kwargs)
+
+    @property
+    def solver(self):
+        """The midpoint solver: "auto", "anderson", "local" or "jacobi" (see the class
+        docstring)."""
+        return self._solver
+
+    @solver.setter
+    def solver(self, value):
+        if value != "auto" and value not in SOLVERS:
+            raise ValueError(f"solver must be one of 'auto', {', '.join(map(repr, SOLVERS))}; "
+                             f"got {value!r}")
+        self._solver = value
 
     def _prepare(self, st):
         """Per-stage predictor history and contraction estimates, the buffers of
@@ -124,6 +158,7 @@ class CollectivePRK(SpinLatticeDynamics):
         st.predictor_order = [0 for _ in self.gammas]
         st.theta = [1.0 for _ in self.gammas]
         st.ops_next = None
+        st.modes = {}
         st.Wnext = np.zeros_like(st.s)
         magnetic_rows = np.flatnonzero(self.ev.magnetic)
         # contiguous whatever the stride: one compiled specialisation of _best_order
@@ -215,16 +250,33 @@ class CollectivePRK(SpinLatticeDynamics):
             scale = st.scales[h] = (h * self.sigma / self.hbar) * st.rate
         carry = np.zeros_like(s)
         stilde = np.zeros_like(s)
-        args = (s, W, st.Wnext, stilde, scale, self.tol, 64.0 * self.tol, self.max_iter,
-                min(1.0, 2.0 * st.theta[stage]), st.carry_s, carry)
-        if len(operators) == 1 and hasattr(operators[0], "linear_pairs"):
-            # B̄_i = Σ_j c_ij W_j: the whole iteration in one compiled loop
-            pairs, c = operators[0].linear_pairs(mean)
-            solve = kernels.midpoint_solve_half if pairs.half else kernels.midpoint_solve
-            result = solve(threads.count(), pairs.row, pairs.j, c, *args)
-        else:
-            result = kernels.midpoint_solve_operators(operators, *args, mean)
-        its, delta, status, which, theta, moved = result
+        solver = self._solver
+        if solver == "auto":
+            solver = st.modes.get((stage, h), "jacobi")
+        if solver == "jacobi" and self._solver == "auto":
+            # cheap sweeps while they contract fast; the stiff case is retried below
+            guess = W.copy()
+            its, delta, status, which, theta, moved = self._run_solver(
+                s, operators, W, h, stage, mean, scale, stilde, carry, "jacobi",
+                min(self.max_iter, _AUTO_JACOBI_SWEEPS))
+            if status != kernels.NOT_CONVERGED and not (its > 2 and theta > _AUTO_SWITCH):
+                st.theta[stage] = theta if theta < 1.0 else st.theta[stage]
+                if which == 1:
+                    W, st.Wnext = st.Wnext, W
+                return W, stilde, its, moved, carry
+            st.modes[(stage, h)] = "anderson"
+            st.theta[stage] = 1.0
+            if status == kernels.NOT_CONVERGED:
+                W = guess
+                spent = its
+                its, delta, status, which, theta, moved = self._run_solver(
+                    s, operators, W, h, stage, mean, scale, stilde, carry, "anderson",
+                    self.max_iter)
+                its += spent
+            solver = None  # done
+        if solver is not None:
+            its, delta, status, which, theta, moved = self._run_solver(
+                s, operators, W, h, stage, mean, scale, stilde, carry, solver, self.max_iter)
         st.theta[stage] = theta if theta < 1.0 else st.theta[stage]
         if which == 1:
             W, st.Wnext = st.Wnext, W
@@ -232,15 +284,34 @@ class CollectivePRK(SpinLatticeDynamics):
             self._raise_not_converged(operators, W, its, delta, scale, mean)
         return W, stilde, its, moved, carry
 
+    def _run_solver(self, s, operators, W, h, stage, mean, scale, stilde, carry, solver,
+                    max_iter):
+        """One call of the midpoint kernels with solver ``solver`` (see :meth:`_solve`)."""
+        st = self._state
+        memory, local = SOLVERS[solver]
+        args = (s, W, st.Wnext, stilde, scale, self.tol, 64.0 * self.tol, max_iter,
+                min(1.0, 2.0 * st.theta[stage]), st.carry_s, carry)
+        if len(operators) == 1 and hasattr(operators[0], "linear_pairs"):
+            # B̄_i = Σ_j c_ij W_j: the whole iteration in one compiled loop
+            pairs, c = operators[0].linear_pairs(mean)
+            solve = kernels.midpoint_solve_half if pairs.half else kernels.midpoint_solve
+            return solve(threads.count(), pairs.row, pairs.j, c, *args, memory, local)
+        return kernels.midpoint_solve_operators(operators, *args, mean, memory, local)
+
     def _raise_not_converged(self, operators, W, its, delta, scale, mean):
         B = np.zeros_like(W)
         for op in operators:
             op.field(W, B, mean)
         field = np.sqrt(np.einsum("ij,ij->i", B, B))
         x = float(np.nanmax(np.abs(scale) * field)) if len(field) else 0.0
+        if self._solver == "jacobi":
+            why = ("the Jacobi iteration (solver=\"jacobi\") contracts only while this is "
+                   "well below 2; solver=\"auto\" converges further. ")
+        else:
+            why = "at this step size the midpoint spins may not exist or not be unique. "
         raise SpinConvergenceError(
-            f"the midpoint-spin iteration did not converge at step {self.nsteps}: "
-            f"max |ΔW| = {delta:.3g} after {its} iterations (tol {self.tol:.1e}). "
-            f"h·max|B|/ħ ≈ {x:.3g} rad; the iteration contracts only while this is "
-            f"well below 2. Reduce the timestep (now {self.dt / units.fs:.4g} fs) "
-            f"or raise max_iter. The atoms keep the state before this step.")
+            f"the midpoint-spin iteration ({self._solver}) did not converge at step "
+            f"{self.nsteps}: max |ΔW| = {delta:.3g} after {its} iterations (tol "
+            f"{self.tol:.1e}). h·max|B|/ħ ≈ {x:.3g} rad: {why}Reduce the timestep (now "
+            f"{self.dt / units.fs:.4g} fs) or raise max_iter. The atoms keep the state "
+            f"before this step.")

@@ -7,38 +7,35 @@ import numpy as np
 
 from ..neighbors import balanced_chunks
 from .. import threads
-from ..threads import threaded
+from ..threads import serial_twin, threaded
 
 # Exit status of :func:`midpoint_solve`.
 CONVERGED, ROUNDOFF, NOT_CONVERGED = 0, 1, 2
 
 
+#: Earlier midpoint differences the default solver's Anderson acceleration keeps
+#: (0: none, the plain fixed-point iteration).
+MEMORY = 3
+#: Steps with c_i|B̄_i| above this (rad, for a unit spin) are refused by the locally
+#: exact update: its Cayley rotation angle 2 atan(c|B̄|/|v|) saturates at π, so such a step
+#: is no longer a step of the dynamics (fcc Co: c|B̄| ≈ 4.4 at 8 fs).
+MAX_TURN = 8.0
+#: Atoms per block of the Anderson inner products: a partition fixed whatever
+#: the thread count, its partial sums added in block order, so that every bit of
+#: the result is the same for any number of threads.
+BLOCK = 256
+
+
 @nb.njit(cache=True, inline="always")
-def _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out):
-    """One spin's Jacobi update given its midpoint field B̄_i = (bx, by, bz).
-
-    With d = c_i W_i × B̄_i (c_i = ``scale[i]``, hσ/ħ times the spin's
-    precession rate factor) and v = 2 s_i + d (= s_i + s̃_i), the next iterate is
-    W_i = v/|v| and the end point is
-
-        s̃_i = s_i + d − κ v,   κ = (2 s_i·d + |d|²)/|v|²,
-
-    the reflection of s_i about v: equal to s_i + d at the solution (κ = 0),
-    and |s̃_i| = |s_i| to round-off whatever residual the iteration stops with
-    (κ, the length error a residual would cause, is computed from the increment
-    d, without cancellation). s_i is the stored spin plus the rounding error
-    carried from the last step, and the sum is compensated (Kahan).
-    Returns max |ΔW_i| over components.
-    """
+def _reflect(i, s, wx, wy, wz, bx, by, bz, scale, stilde, carry, carry_out, nxt):
+    """End point and next midpoint of spin i for midpoint direction W_i = (wx,
+    wy, wz) and midpoint field B̄_i = (bx, by, bz): see :func:`_midpoint_update`."""
     sx = s[i, 0]
     sy = s[i, 1]
     sz = s[i, 2]
     cx = carry[i, 0]
     cy = carry[i, 1]
     cz = carry[i, 2]
-    wx = cur[i, 0]
-    wy = cur[i, 1]
-    wz = cur[i, 2]
     c = scale[i]
     dx = c * (wy * bz - wz * by)
     dy = c * (wz * bx - wx * bz)
@@ -63,13 +60,147 @@ def _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out
     stilde[i, 1] = ty
     stilde[i, 2] = tz
     inv = 1.0 / np.sqrt(vv)
-    vx *= inv
-    vy *= inv
-    vz *= inv
-    nxt[i, 0] = vx
-    nxt[i, 1] = vy
-    nxt[i, 2] = vz
-    return max(abs(vx - wx), abs(vy - wy), abs(vz - wz))
+    nxt[i, 0] = vx * inv
+    nxt[i, 1] = vy * inv
+    nxt[i, 2] = vz * inv
+
+
+@nb.njit(cache=True, inline="always")
+def _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out):
+    """One spin's Jacobi update given its midpoint field B̄_i = (bx, by, bz).
+
+    With d = c_i W_i × B̄_i (c_i = ``scale[i]``, hσ/ħ times the spin's
+    precession rate factor) and v = 2 s_i + d (= s_i + s̃_i), the next iterate is
+    W_i = v/|v| and the end point is
+
+        s̃_i = s_i + d − κ v,   κ = (2 s_i·d + |d|²)/|v|²,
+
+    the reflection of s_i about v: equal to s_i + d at the solution (κ = 0),
+    and |s̃_i| = |s_i| to round-off whatever residual the iteration stops with
+    (κ, the length error a residual would cause, is computed from the increment
+    d, without cancellation). s_i is the stored spin plus the rounding error
+    carried from the last step, and the sum is compensated (Kahan).
+    Returns max |ΔW_i| over components.
+    """
+    wx = cur[i, 0]
+    wy = cur[i, 1]
+    wz = cur[i, 2]
+    _reflect(i, s, wx, wy, wz, bx, by, bz, scale, stilde, carry, carry_out, nxt)
+    return max(abs(nxt[i, 0] - wx), abs(nxt[i, 1] - wy), abs(nxt[i, 2] - wz))
+
+
+@nb.njit(cache=True, inline="always")
+def local_midpoint(px, py, pz, bx, by, bz, c):
+    r"""The midpoint direction of one spin p in a fixed field b: the unit W with
+
+    .. math:: \mathbf W = \frac{\mathbf v}{|\mathbf v|}, \qquad
+              \mathbf v = 2\mathbf p + c\, \mathbf W \times \mathbf b
+
+    (the spherical midpoint step of ṗ ∝ p × b: a Cayley rotation about b).
+    With λ = |v| and a = c/λ the equation is linear in v, v − a v × b = 2p, so
+
+    .. math:: \mathbf v \propto \mathbf p + a\, \mathbf p \times \mathbf b
+              + a^2 (\mathbf p\cdot\mathbf b)\, \mathbf b, \qquad
+              |\mathbf v|^2 = 4\frac{|p|^2 + a^2 (p\cdot b)^2}{1 + a^2 |b|^2},
+
+    and y = λ² is the positive root of y² − (4|p|² − c²|b|²) y − 4c²(p·b)² = 0
+    (taken in the form without cancellation). Returns (Wx, Wy, Wz, found):
+    no root when p ⊥ b and |c b| ≥ 2|p| (a half-turn or more per step)."""
+    pp = px * px + py * py + pz * pz
+    pb = px * bx + py * by + pz * bz
+    cc = c * c
+    cb = cc * (bx * bx + by * by + bz * bz)
+    q = 4.0 * pp - cb
+    r = 4.0 * cc * pb * pb
+    root = np.sqrt(q * q + 4.0 * r)
+    if q >= 0.0:
+        y = 0.5 * (q + root)
+    else:
+        y = 2.0 * r / (root - q)
+    if not y > 0.0:
+        return 0.0, 0.0, 0.0, False
+    sy = np.sqrt(y)
+    a = c / sy
+    f = a * a * pb
+    # W = v/λ = 2 sqrt(y) v'/(y + c²|b|²) with v' = p + a p × b + a²(p·b) b: unit,
+    # as y(y + c²|b|²) = 4(|p|² y + c²(p·b)²) is the equation of y
+    g = 2.0 * sy / (y + cb)
+    return (g * (px + a * (py * bz - pz * by) + f * bx),
+            g * (py + a * (pz * bx - px * bz) + f * by),
+            g * (pz + a * (px * by - py * bx) + f * bz), True)
+
+
+@nb.njit(cache=True, inline="always")
+def _local_midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out):
+    """One spin's locally exact update: W_i solved exactly for the field B̄_i =
+    (bx, by, bz) of the current iterate (:func:`local_midpoint`, for the spin
+    p = s_i + carry), the next iterate; the end point from it as in
+    :func:`_midpoint_update` (reflection of s_i about v = 2 p + c W_i × B̄_i,
+    compensated sum), with |v|² = y, the root of :func:`local_midpoint` (equal
+    to it up to the rounding of W_i; κ, which it divides, is itself of that
+    order). Where the local equation has no root, the Jacobi update. Returns
+    max |ΔW_i| over components, or 4 (more than any change of unit vectors:
+    "not converged") where c_i|B̄_i| > :data:`MAX_TURN` |s_i|."""
+    sx = s[i, 0]
+    sy = s[i, 1]
+    sz = s[i, 2]
+    cx = carry[i, 0]
+    cy = carry[i, 1]
+    cz = carry[i, 2]
+    px = sx + cx
+    py = sy + cy
+    pz = sz + cz
+    c = scale[i]
+    pb = px * bx + py * by + pz * bz
+    cc = c * c
+    cb = cc * (bx * bx + by * by + bz * bz)
+    pp = px * px + py * py + pz * pz
+    if cb > MAX_TURN * MAX_TURN * pp:
+        return 4.0  # refused: reported as not converged (see MAX_TURN)
+    q = 4.0 * pp - cb
+    r = 4.0 * cc * pb * pb
+    root = np.sqrt(q * q + 4.0 * r)
+    if q >= 0.0:
+        y = 0.5 * (q + root)
+    else:
+        y = 2.0 * r / (root - q)
+    if not y > 0.0:
+        return _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out)
+    lam = np.sqrt(y)
+    inv_y = 1.0 / y
+    a = c * lam * inv_y
+    f = a * a * pb
+    g = 2.0 * lam / (y + cb)
+    wx = g * (px + a * (py * bz - pz * by) + f * bx)
+    wy = g * (py + a * (pz * bx - px * bz) + f * by)
+    wz = g * (pz + a * (px * by - py * bx) + f * bz)
+    dx = c * (wy * bz - wz * by)
+    dy = c * (wz * bx - wx * bz)
+    dz = c * (wx * by - wy * bx)
+    vx = 2.0 * px + dx
+    vy = 2.0 * py + dy
+    vz = 2.0 * pz + dz
+    kappa = (2.0 * ((sx * dx + sy * dy + sz * dz) + (cx * dx + cy * dy + cz * dz))
+             + (dx * dx + dy * dy + dz * dz)) * inv_y
+    ax = cx + (dx - kappa * vx)
+    ay = cy + (dy - kappa * vy)
+    az = cz + (dz - kappa * vz)
+    tx = sx + ax
+    ty = sy + ay
+    tz = sz + az
+    carry_out[i, 0] = ax - (tx - sx)
+    carry_out[i, 1] = ay - (ty - sy)
+    carry_out[i, 2] = az - (tz - sz)
+    stilde[i, 0] = tx
+    stilde[i, 1] = ty
+    stilde[i, 2] = tz
+    ox = cur[i, 0]
+    oy = cur[i, 1]
+    oz = cur[i, 2]
+    nxt[i, 0] = wx
+    nxt[i, 1] = wy
+    nxt[i, 2] = wz
+    return max(abs(wx - ox), abs(wy - oy), abs(wz - oz))
 
 
 @nb.njit(cache=True, inline="always")
@@ -90,9 +221,135 @@ def after_sweep(it, delta, previous, theta, measured, first, tol, floor):
     return -1, theta, measured, first
 
 
-@threaded()
+@nb.njit(cache=True)
+def _solve_small(A, b, k):
+    """x with A[:k, :k] x = b[:k] (Gaussian elimination, partial pivoting), after
+    adding 1e-13 × the largest diagonal element to the diagonal: the
+    regularised normal equations of the Anderson least-squares problem. A
+    singular or non-finite system gives x = 0 (a plain fixed-point step)."""
+    M = np.empty((k, k))
+    x = np.empty(k)
+    big = 0.0
+    for a in range(k):
+        big = max(big, A[a, a])
+    for a in range(k):
+        x[a] = b[a]
+        for c in range(k):
+            M[a, c] = A[a, c]
+        M[a, a] += 1e-13 * big
+    for col in range(k):
+        piv = col
+        for r in range(col + 1, k):
+            if abs(M[r, col]) > abs(M[piv, col]):
+                piv = r
+        if not abs(M[piv, col]) > 0.0:
+            return np.zeros(k)
+        for c in range(k):
+            M[col, c], M[piv, c] = M[piv, c], M[col, c]
+        x[col], x[piv] = x[piv], x[col]
+        for r in range(col + 1, k):
+            f = M[r, col] / M[col, col]
+            for c in range(col, k):
+                M[r, c] -= f * M[col, c]
+            x[r] -= f * x[col]
+    for r in range(k - 1, -1, -1):
+        acc = x[r]
+        for c in range(r + 1, k):
+            acc -= M[r, c] * x[c]
+        x[r] = acc / M[r, r]
+    for a in range(k):
+        if not np.isfinite(x[a]):
+            return np.zeros(k)
+    return x
+
+
+@nb.njit(cache=True, parallel=threads.prange_only())
+def anderson_mix(it, x, g, fprev, gprev, dF, dG, gram):
+    r"""Anderson acceleration of the fixed-point iteration x ← g(x) on unit
+    vectors, after sweep ``it`` gave g = g(x) (both (n, 3); rows of zeros, the
+    non-magnetic atoms, stay zero). With the residual f = g − x and the last k ≤
+    m = ``len(dF)`` differences ΔF_a = f_a − f_{a−1}, ΔG_a = g_a − g_{a−1} (ring
+    buffers ``dF``, ``dG``, their Gram matrix ``gram``; ``fprev``, ``gprev`` the
+    last f and g):
+
+    .. math:: \gamma = \arg\min_\gamma \bigl|f - \textstyle\sum_a \gamma_a
+              \Delta F_a\bigr|_2, \qquad x \leftarrow \mathrm{normalise}\bigl(g -
+              \textstyle\sum_a \gamma_a \Delta G_a\bigr),
+
+    written into ``x`` row by row. The inner products are summed over blocks of
+    :data:`BLOCK` atoms, then the blocks in order: the same bits for any thread count."""
+    n = x.shape[0]
+    m = dF.shape[0]
+    k = min(it - 1, m)
+    slot = (it - 2) % m
+    nblocks = (n + BLOCK - 1) // BLOCK
+    part = np.zeros((nblocks, 2 * m))
+    for blk in nb.prange(nblocks):
+        for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
+            fx = g[i, 0] - x[i, 0]
+            fy = g[i, 1] - x[i, 1]
+            fz = g[i, 2] - x[i, 2]
+            if k > 0:
+                ex = fx - fprev[i, 0]
+                ey = fy - fprev[i, 1]
+                ez = fz - fprev[i, 2]
+                dF[slot, i, 0] = ex
+                dF[slot, i, 1] = ey
+                dF[slot, i, 2] = ez
+                dG[slot, i, 0] = g[i, 0] - gprev[i, 0]
+                dG[slot, i, 1] = g[i, 1] - gprev[i, 1]
+                dG[slot, i, 2] = g[i, 2] - gprev[i, 2]
+                for a in range(k):
+                    part[blk, a] += dF[a, i, 0] * ex + dF[a, i, 1] * ey + dF[a, i, 2] * ez
+                    part[blk, m + a] += dF[a, i, 0] * fx + dF[a, i, 1] * fy + dF[a, i, 2] * fz
+            fprev[i, 0] = fx
+            fprev[i, 1] = fy
+            fprev[i, 2] = fz
+            gprev[i, 0] = g[i, 0]
+            gprev[i, 1] = g[i, 1]
+            gprev[i, 2] = g[i, 2]
+    if k == 0:
+        for i in nb.prange(n):
+            x[i, 0] = g[i, 0]
+            x[i, 1] = g[i, 1]
+            x[i, 2] = g[i, 2]
+        return
+    rhs = np.zeros(m)
+    for a in range(k):
+        d = 0.0
+        r = 0.0
+        for blk in range(nblocks):
+            d += part[blk, a]
+            r += part[blk, m + a]
+        gram[slot, a] = d
+        gram[a, slot] = d
+        rhs[a] = r
+    gamma = _solve_small(gram, rhs, k)
+    for i in nb.prange(n):
+        vx = g[i, 0]
+        vy = g[i, 1]
+        vz = g[i, 2]
+        for a in range(k):
+            vx -= gamma[a] * dG[a, i, 0]
+            vy -= gamma[a] * dG[a, i, 1]
+            vz -= gamma[a] * dG[a, i, 2]
+        vv = vx * vx + vy * vy + vz * vz
+        if vv > 0.0:
+            inv = 1.0 / np.sqrt(vv)
+            vx *= inv
+            vy *= inv
+            vz *= inv
+        x[i, 0] = vx
+        x[i, 1] = vy
+        x[i, 2] = vz
+
+
+anderson_mix_serial = serial_twin(anderson_mix)
+
+
+@threaded(anderson_mix=lambda: anderson_mix_serial)
 def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
-                   theta0, carry, carry_out):
+                   theta0, carry, carry_out, memory=MEMORY, local=True):
     r"""Solve the spherical-midpoint equation for fixed pair couplings J̄_ij:
 
     .. math::
@@ -102,9 +359,15 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
         \mathbf W_i = \frac{\mathbf s_i + \tilde{\mathbf s}_i}{|\mathbf s_i + \tilde{\mathbf s}_i|},
 
     with c = hσ/ħ (per spin: ``scale`` holds c_i, which carries each spin's
-    precession rate factor), by the Jacobi fixed-point iteration
-    W ← (2 s + c W × B̄(W)) / |2 s + c W × B̄(W)|, which contracts while c|B̄| ≲ 1.
-    Rows with s_i = 0 (non-magnetic atoms) are skipped.
+    precession rate factor). Each sweep maps the iterate W to g(W): with
+    ``local`` (the default), every spin's own equation solved exactly in the
+    field of the others, B̄_i(W) held fixed (:func:`local_midpoint`, a Cayley
+    rotation about B̄_i; contracts for every step size where the plain
+    iteration may not); else the Jacobi map g(W) = (2 s + c W × B̄(W)) /
+    |2 s + c W × B̄(W)|, which contracts only while c|B̄| ≲ 1. With ``memory``
+    m > 0, the next iterate is the Anderson combination of the last m + 1
+    sweeps (:func:`anderson_mix`), else g(W). Rows with s_i = 0 (non-magnetic
+    atoms) are skipped.
 
     ``W`` holds the starting guess; ``Wnext`` is a buffer of the same shape (zero
     on non-magnetic rows). ``stilde`` receives the end point of the last sweep,
@@ -125,9 +388,14 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     n = len(row) - 1
     bounds = balanced_chunks(row, nthreads)
     change = np.zeros(nthreads)
+    dF = np.empty((memory, n, 3))
+    dG = np.empty((memory, n, 3))
+    fprev = np.empty((n if memory > 0 else 0, 3))
+    gprev = np.empty((n if memory > 0 else 0, 3))
+    gram = np.zeros((memory, memory))
     cur = W
     nxt = Wnext
-    which = 0
+    which = 1  # the buffer nxt is
     previous = np.inf
     theta = theta0
     measured = theta0
@@ -148,23 +416,31 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
                     bx += Jk * cur[j, 0]
                     by += Jk * cur[j, 1]
                     bz += Jk * cur[j, 2]
-                m = max(m, _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
-                                            carry_out))
+                if local:
+                    d = _local_midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
+                                               carry_out)
+                else:
+                    d = _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
+                                         carry_out)
+                m = max(m, d)
             change[t] = m
         delta = change.max()
-        cur, nxt = nxt, cur
-        which = 1 - which
         status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
                                                       first, tol, floor)
         if status >= 0:
             return it, delta, status, which, measured, first
         previous = delta
+        if memory > 0:
+            anderson_mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
+        else:
+            cur, nxt = nxt, cur
+            which = 1 - which
     return max_iter, delta, NOT_CONVERGED, which, measured, first
 
 
-@threaded()
+@threaded(anderson_mix=lambda: anderson_mix_serial)
 def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor,
-                        max_iter, theta0, carry, carry_out):
+                        max_iter, theta0, carry, carry_out, memory=MEMORY, local=True):
     """:func:`midpoint_solve` over a half pair list (each pair once, half the
     memory traffic): each sweep scatters J̄_ij W_j into row i and J̄_ij W_i into
     row j of per-thread buffers, then updates every spin from their sum."""
@@ -175,9 +451,14 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
         atoms[t] = (n * t) // nthreads
     buf = np.zeros((nthreads, n, 3))
     change = np.zeros(nthreads)
+    dF = np.empty((memory, n, 3))
+    dG = np.empty((memory, n, 3))
+    fprev = np.empty((n if memory > 0 else 0, 3))
+    gprev = np.empty((n if memory > 0 else 0, 3))
+    gram = np.zeros((memory, memory))
     cur = W
     nxt = Wnext
-    which = 0
+    which = 1
     previous = np.inf
     theta = theta0
     measured = theta0
@@ -219,24 +500,33 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
                     buf[u, i, 2] = 0.0
                 if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
                     continue
-                m = max(m, _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
-                                            carry_out))
+                if local:
+                    d = _local_midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
+                                               carry_out)
+                else:
+                    d = _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
+                                         carry_out)
+                m = max(m, d)
             change[t] = m
         delta = change.max()
-        cur, nxt = nxt, cur
-        which = 1 - which
         status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
                                                       first, tol, floor)
         if status >= 0:
             return it, delta, status, which, measured, first
         previous = delta
+        if memory > 0:
+            anderson_mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
+        else:
+            cur, nxt = nxt, cur
+            which = 1 - which
     return max_iter, delta, NOT_CONVERGED, which, measured, first
 
 
 @threaded()
-def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out):
-    """One Jacobi sweep of the midpoint iteration for given midpoint fields
-    B̄ = ``B`` (the sum of every spin operator's field at W): the update of
+def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, local=True):
+    """One sweep of the midpoint iteration for given midpoint fields B̄ = ``B``
+    (the sum of every spin operator's field at W): the locally exact update of
+    :func:`_local_midpoint_update` (``local``) or the Jacobi update of
     :func:`_midpoint_update` for every magnetic spin (rows with s_i = 0 are
     skipped), W → ``Wnext``. Returns max |ΔW| over all components."""
     n = s.shape[0]
@@ -246,24 +536,38 @@ def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out):
         for i in range((n * t) // nthreads, (n * (t + 1)) // nthreads):
             if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
                 continue
-            m = max(m, _midpoint_update(i, s, W, Wnext, B[i, 0], B[i, 1], B[i, 2], scale,
-                                        stilde, carry, carry_out))
+            if local:
+                d = _local_midpoint_update(i, s, W, Wnext, B[i, 0], B[i, 1], B[i, 2], scale,
+                                           stilde, carry, carry_out)
+            else:
+                d = _midpoint_update(i, s, W, Wnext, B[i, 0], B[i, 1], B[i, 2], scale, stilde,
+                                     carry, carry_out)
+            m = max(m, d)
         change[t] = m
     return change.max()
 
 
 def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, max_iter,
-                             theta0, carry, carry_out, mean):
+                             theta0, carry, carry_out, mean, memory=MEMORY, local=True):
     r""":func:`midpoint_solve` for any spin terms: B̄_i = Σ_terms B̄_i(W), each
     operator adding its own midpoint field (``field(W, out, mean)``) every
-    sweep. The same update, reflection form, compensated sum, stopping rule and
+    sweep. The same updates (a single-site term's field is held at the
+    current W_i in the locally exact update: still the same fixed point),
+    Anderson acceleration, reflection form, compensated sum, stopping rule and
     return values as :func:`midpoint_solve`; ``operators`` whose field is of the
     form Σ_j c_ij W_j are better solved there (one compiled loop)."""
     B = np.empty_like(s)
     nthreads = threads.count()
+    mix = anderson_mix if nthreads > 1 else anderson_mix_serial
+    n = s.shape[0]
+    dF = np.empty((memory, n, 3))
+    dG = np.empty((memory, n, 3))
+    fprev = np.empty((n if memory > 0 else 0, 3))
+    gprev = np.empty_like(fprev)
+    gram = np.zeros((memory, memory))
     cur = W
     nxt = Wnext
-    which = 0
+    which = 1
     previous = np.inf
     theta = measured = theta0
     delta = first = 0.0
@@ -271,14 +575,18 @@ def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, 
         B[:] = 0.0
         for op in operators:
             op.field(cur, B, mean)
-        delta = midpoint_update(nthreads, s, cur, nxt, B, scale, stilde, carry, carry_out)
-        cur, nxt = nxt, cur
-        which = 1 - which
+        delta = midpoint_update(nthreads, s, cur, nxt, B, scale, stilde, carry, carry_out,
+                                local)
         status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
                                                      first, tol, floor)
         if status >= 0:
             return it, delta, status, which, measured, first
         previous = delta
+        if memory > 0:
+            mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
+        else:
+            cur, nxt = nxt, cur
+            which = 1 - which
     return max_iter, delta, NOT_CONVERGED, which, measured, first
 
 

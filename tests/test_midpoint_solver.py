@@ -1,0 +1,149 @@
+"""The midpoint solvers of CollectivePRK: the locally exact spin update, Anderson
+acceleration, and where each converges (docs/dynamics.md, "The midpoint solver")."""
+
+import numpy as np
+import pytest
+from ase import units
+from scipy.optimize import root
+
+import ase_spin
+from ase_spin import CollectivePRK, SpinLatticeCalculator
+from ase_spin.md import SpinConvergenceError
+from ase_spin.md.kernels import local_midpoint
+from ase_spin.scenes import fcc_cobalt, fcc_cobalt_terms, field_anisotropy_terms
+from ase_spin.threads import chunks
+
+pytestmark = pytest.mark.filterwarnings("ignore::ase_spin.md.base.TimestepWarning")
+
+
+def unit(v):
+    return v / np.linalg.norm(v)
+
+
+def test_local_midpoint_solves_one_spin_exactly():
+    """W = (2p + c W × b)/|2p + c W × b| to round-off, for spins of any length,
+    either sign of c and up to half a turn per step; no root only where none
+    exists (p ⊥ b, |c b| ≥ 2|p|)."""
+    rng = np.random.default_rng(3)
+    worst = 0.0
+    for _ in range(2000):
+        p = rng.normal(size=3) * rng.uniform(0.5, 2.0)
+        b = rng.normal(size=3)
+        c = rng.uniform(-3.0, 3.0)
+        w = np.array(local_midpoint(*p, *b, c)[:3])
+        assert local_midpoint(*p, *b, c)[3]
+        worst = max(worst, abs(np.linalg.norm(w) - 1.0),
+                    float(np.abs(w - unit(2 * p + c * np.cross(w, b))).max()))
+    assert worst < 1e-13
+    p = np.array([1.0, 0.0, 0.0])
+    assert not local_midpoint(*p, 0.0, 0.0, 1.0, 2.5)[3]       # |cb| = 2.5 > 2|p|
+    assert local_midpoint(*p, 0.0, 0.0, 1.0, 1.5)[3]
+
+
+def frozen_step_reference(dt_fs):
+    """The midpoint spins of one frozen-lattice step, solved by scipy's root
+    finder (MINPACK hybrid Powell) to xtol 1e-15: s̃ = 2(s·W)W − s."""
+    dyn = CollectivePRK(fcc_cobalt(2), dt_fs * units.fs, lattice="frozen", solver="jacobi")
+    dyn._sync()
+    st = dyn._state
+    c = (dt_fs * units.fs * dyn.sigma / dyn.hbar) * st.rate[:, None]
+    s = st.s.copy()
+
+    def residual(x):
+        W = x.reshape(-1, 3)
+        B = np.zeros_like(W)
+        for op in st.ops:
+            op.field(W, B)
+        v = 2 * s + c * np.cross(W, B)
+        return (v / np.linalg.norm(v, axis=1)[:, None] - W).ravel()
+
+    sol = root(residual, s.ravel(), method="hybr", options={"xtol": 1e-15})
+    W = sol.x.reshape(-1, 3)
+    W /= np.linalg.norm(W, axis=1)[:, None]
+    assert np.abs(residual(W.ravel())).max() < 1e-13
+    return 2 * np.einsum("ij,ij->i", s, W)[:, None] * W - s
+
+
+@pytest.mark.parametrize("solver", ["anderson", "local", "auto"])
+def test_converges_where_jacobi_fails_to_the_reference_solution(solver):
+    """At 4 fs on a frozen fcc Co lattice (h|B|/ħ ≈ 2 rad) the Jacobi iteration
+    diverges; the other solvers give the midpoint solution of an independent
+    root finder to round-off, spins of unit length."""
+    with pytest.raises(SpinConvergenceError, match="jacobi"):
+        CollectivePRK(fcc_cobalt(2), 4 * units.fs, lattice="frozen", solver="jacobi").run(1)
+    reference = frozen_step_reference(4.0)
+    atoms = fcc_cobalt(2)
+    dyn = CollectivePRK(atoms, 4 * units.fs, lattice="frozen", solver=solver)
+    dyn.run(1)
+    s = ase_spin.get_spins(atoms)
+    assert np.abs(s - reference).max() < 1e-13
+    assert np.abs(np.linalg.norm(dyn._state.s, axis=1) - 1).max() < 1e-15
+
+
+@pytest.mark.parametrize("dt_fs", [0.1, 0.5, 2.0])
+def test_solvers_agree_and_anderson_needs_fewer_sweeps(dt_fs):
+    """The same steps to round-off from every solver (they solve one equation),
+    and fewer sweeps from the locally exact one, fewer still with Anderson
+    acceleration, than from Jacobi (fcc Co, 100 K lattice moving)."""
+    runs = {}
+    for solver in ("jacobi", "local", "anderson"):
+        atoms = fcc_cobalt(2)
+        dyn = CollectivePRK(atoms, dt_fs * units.fs, solver=solver)
+        dyn.run(10)
+        runs[solver] = (dyn.mean_iterations, atoms.positions.copy(), ase_spin.get_spins(atoms))
+    for solver in ("local", "anderson"):
+        assert np.abs(runs[solver][1] - runs["jacobi"][1]).max() < 1e-11
+        assert np.abs(runs[solver][2] - runs["jacobi"][2]).max() < 1e-11
+    assert runs["local"][0] < runs["jacobi"][0]
+    assert runs["anderson"][0] <= runs["local"][0]
+
+
+@pytest.mark.parametrize("order", [2, 4, 6])
+def test_large_steps_run_with_every_order(order):
+    """3 fs (Jacobi fails from here, test_md) with orders 2, 4 and 6: the steps
+    go through, spins keep their length, the energy stays bounded."""
+    atoms = fcc_cobalt(2)
+    dyn = CollectivePRK(atoms, 3 * units.fs, order=order)
+    e0 = dyn.get_total_energy()
+    dyn.run(20)
+    assert abs(dyn.get_total_energy() - e0) < 5e-3 * len(atoms)
+    assert np.abs(np.linalg.norm(dyn._state.s, axis=1) - 1).max() < 1e-14
+
+
+def test_anderson_with_single_site_terms():
+    """The solver over several operators (field, anisotropy): the same steps as
+    Jacobi to round-off, fewer sweeps, and a step Jacobi cannot take."""
+    runs = []
+    for solver in ("jacobi", "anderson"):
+        atoms = fcc_cobalt(2)
+        atoms.calc = SpinLatticeCalculator([*fcc_cobalt_terms(), *field_anisotropy_terms()])
+        dyn = CollectivePRK(atoms, 1 * units.fs, solver=solver)
+        dyn.run(5)
+        runs.append((dyn.mean_iterations, ase_spin.get_spins(atoms)))
+    assert np.abs(runs[0][1] - runs[1][1]).max() < 1e-11
+    assert runs[1][0] < runs[0][0]
+    dyn.dt = 4 * units.fs
+    dyn.run(2)
+
+
+def test_solver_argument_is_checked():
+    with pytest.raises(ValueError, match="solver"):
+        CollectivePRK(fcc_cobalt(1), 1.0, solver="newton")
+
+
+@pytest.mark.skipif(chunks() < 2, reason="numba has one thread here")
+@pytest.mark.parametrize("extra", [False, True])
+def test_anderson_is_bitwise_the_same_with_one_thread_or_all(extra):
+    """Anderson's inner products are summed over fixed blocks: one thread or
+    all give the same bits (N = 4000, threaded kernels; exchange alone, the
+    fused solve, or with field and anisotropy, the operators' solve)."""
+    runs = []
+    for n in (1, chunks()):
+        atoms = fcc_cobalt(10)
+        if extra:
+            atoms.calc = SpinLatticeCalculator([*fcc_cobalt_terms(), *field_anisotropy_terms()])
+        dyn = CollectivePRK(atoms, 1.0 * units.fs, solver="anderson", threads=n)
+        dyn.run(2)
+        runs.append((atoms.positions.copy(), ase_spin.get_spins(atoms), dyn.total_iterations))
+    for a, b in zip(*runs):
+        assert np.array_equal(a, b)
