@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .neighbors import NeighborCache
+from .neighbors import NeighborCache, all_finite
 from .threads import threads_for
 from .terms.ase_calculator import CalculatorTerm, is_ase_calculator
 from .terms.base import Species, System, Term, parameter_generation
@@ -363,7 +363,7 @@ def _as_positions(positions, n):
     positions = np.ascontiguousarray(positions, dtype=float)
     if positions.shape != (n, 3):
         raise ValueError(f"positions must have shape ({n}, 3), got {positions.shape}")
-    if not np.isfinite(positions).all():
+    if not all_finite(positions):
         bad = np.flatnonzero(~np.isfinite(positions).all(axis=1))
         raise ValueError(f"positions are not finite for atoms {bad[:10].tolist()}")
     return positions
@@ -399,7 +399,7 @@ def _check_finite(ev, positions, neighbors):
              "magnetic forces": ev.magnetic_forces, "stress": ev.virial,
              "energy": None if ev.energy is None else np.array([ev.energy])}
     bad_parts = [name for name, x in parts.items()
-                 if x is not None and not np.isfinite(x).all()]
+                 if x is not None and not (all_finite(x) if x.ndim == 2 else np.isfinite(x).all())]
     if not bad_parts:
         return
     what = " and ".join(bad_parts)

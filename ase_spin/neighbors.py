@@ -80,6 +80,17 @@ def max_displacement(positions, reference):
     return np.sqrt(worst), at
 
 
+@nb.njit(cache=True)
+def all_finite(a):
+    """No NaN or inf in a 2-D array (one compiled pass: cheaper than numpy's
+    two for the few atoms of a small system, checked several times a step)."""
+    for i in range(a.shape[0]):
+        for c in range(a.shape[1]):
+            if not np.isfinite(a[i, c]):
+                return False
+    return True
+
+
 def _rows(i, n):
     row = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(np.bincount(i, minlength=n), out=row[1:])
@@ -705,13 +716,26 @@ class NeighborCache:
             return None
         return self.sublist(self.cutoff)
 
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        if "_cell_key" not in state:  # pickled by an older version: rebuild
+            self._reference = None
+
     def invalidate(self):
         self._reference = None
+
+    @property
+    def reference(self):
+        """Positions of the last build (None before one): the list stays valid
+        while no atom is farther than ``skin / 2`` from here."""
+        return self._reference
 
     def needs_rebuild(self, positions, cell, pbc):
         if self._reference is None or positions.shape != self._reference.shape:
             return True
-        if not np.array_equal(cell, self._cell) or not np.array_equal(pbc, self._pbc):
+        # bytes, not np.array_equal: this runs several times per step of a small
+        # system (a bitwise change, e.g. -0.0 for 0.0, merely rebuilds)
+        if cell.tobytes() != self._cell_key or pbc.tobytes() != self._pbc_key:
             return True
         return max_displacement(positions, self._reference)[0] > 0.5 * self.skin
 
@@ -738,6 +762,8 @@ class NeighborCache:
         self._reference = positions.copy()
         self._cell = cell.copy()
         self._pbc = pbc.copy()
+        self._cell_key = np.asarray(self._cell, dtype=float).tobytes()
+        self._pbc_key = np.asarray(self._pbc, dtype=bool).tobytes()
         self.builds += 1
         return True
 

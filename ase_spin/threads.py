@@ -15,33 +15,50 @@ import os
 import threading
 import time
 import types
-from contextlib import contextmanager
 
 import numba as nb
 
-__all__ = ["SERIAL_BELOW", "threads_for", "count", "threaded", "serial_twin",
-           "prange_only", "AdaptiveThreads"]
+__all__ = ["SERIAL_BELOW", "SERIAL_ALL_BELOW", "threads_for", "count", "threaded",
+           "serial_twin", "prange_only", "AdaptiveThreads"]
 
 #: Systems with fewer atoms than this run the serial twins.
 SERIAL_BELOW = 1500
+#: Systems with fewer atoms than this (and than :data:`SERIAL_BELOW`) run even
+#: the ``always`` kernels serially: at the paper's 30-atom chain one
+#: Lennard-Jones pass takes ~2 µs serial against ~10–17 µs threaded (the cost of
+#: starting the parallel region); fcc Co at N = 32 breaks even
+#: (``benchmarks/small_systems.py``).
+SERIAL_ALL_BELOW = 64
 
 
 class _Mode(threading.local):
     serial = False
+    tiny = False
 
 
 _mode = _Mode()
 
 
-@contextmanager
-def threads_for(natoms):
-    """Run the kernels called inside threaded, or serial for a small system."""
-    previous = _mode.serial
-    _mode.serial = natoms < SERIAL_BELOW
-    try:
-        yield
-    finally:
-        _mode.serial = previous
+class threads_for:
+    """``with threads_for(natoms):`` runs the kernels called inside threaded, or
+    serial for a small system. (A class, not a generator: it is entered several
+    times per step of a small system, where a generator's cost shows.)"""
+
+    __slots__ = ("natoms", "_previous")
+
+    def __init__(self, natoms):
+        self.natoms = natoms
+
+    def __enter__(self):
+        mode = _mode
+        self._previous = (mode.serial, mode.tiny)
+        mode.serial = self.natoms < SERIAL_BELOW
+        mode.tiny = self.natoms < SERIAL_ALL_BELOW
+        return self
+
+    def __exit__(self, *exc):
+        _mode.serial, _mode.tiny = self._previous
+        return False
 
 
 def chunks():
@@ -49,6 +66,12 @@ def chunks():
     thread count, fixed for the process (not the active count, which
     :class:`AdaptiveThreads` may lower)."""
     return nb.config.NUMBA_NUM_THREADS
+
+
+def tiny():
+    """Inside :func:`threads_for` of a system small enough for every kernel
+    to run serially (fewer than :data:`SERIAL_ALL_BELOW` atoms)."""
+    return _mode.serial and _mode.tiny
 
 
 def count():
@@ -108,7 +131,10 @@ class _Threaded:
         return self._serial
 
     def __call__(self, *args):
-        return (self.serial if _mode.serial and not self.always else self.parallel)(*args)
+        mode = _mode
+        if mode.serial and (mode.tiny or not self.always):
+            return (self._serial or self.serial)(*args)
+        return self.parallel(*args)
 
 
 def threaded(always=False, **replace):
@@ -224,18 +250,38 @@ class AdaptiveThreads:
         self._next_probe = max(self._next_probe, time.perf_counter() + self._interval,
                                time.perf_counter() + PROBE_BUDGET * elapsed)
 
-    @contextmanager
     def step(self, natoms):
-        """Run one step inside: sets the thread count (and the serial twins
-        for a small system), times the step, restores numba's setting."""
-        n = self._choose()
-        previous = nb.get_num_threads()
-        nb.set_num_threads(n)
-        t0 = time.perf_counter()
-        try:
-            with threads_for(natoms):
-                yield
-        finally:
-            nb.set_num_threads(previous)
-        self.choice = n
-        self._record(n, time.perf_counter() - t0)
+        """``with adaptive.step(natoms):`` runs one step inside: sets the thread
+        count (and the serial twins for a small system), times the step,
+        restores numba's setting."""
+        return _Step(self, natoms)
+
+
+class _Step:
+    """The context of :meth:`AdaptiveThreads.step` (a class: a generator's
+    overhead shows in the steps of a small system)."""
+
+    __slots__ = ("adaptive", "n", "previous", "sized", "t0")
+
+    def __init__(self, adaptive, natoms):
+        self.adaptive = adaptive
+        self.sized = threads_for(natoms)
+
+    def __enter__(self):
+        self.n = n = self.adaptive._choose()
+        self.previous = previous = nb.get_num_threads()
+        if n != previous:
+            nb.set_num_threads(n)
+        self.t0 = time.perf_counter()
+        self.sized.__enter__()
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        self.sized.__exit__(exc_type, exc, tb)
+        if self.n != self.previous:
+            nb.set_num_threads(self.previous)
+        if exc_type is None:
+            adaptive = self.adaptive
+            adaptive.choice = self.n
+            adaptive._record(self.n, time.perf_counter() - self.t0)
+        return False

@@ -38,6 +38,11 @@ __all__ = ["SpinLatticeDynamics", "TimestepWarning", "IntegrationError", "SpinCo
            "UnstableStepError", "HBAR"]
 
 _FORCES = Want(forces=True)
+_NO_FIELD = np.zeros((0, 3))
+_NO_ENERGIES = np.zeros(0)
+#: Want of the step's lattice evaluation, by (energy, virial)
+_LATTICE = {(e, v): Want(forces=True, energy=e, virial=v)
+            for e in (False, True) for v in (False, True)}
 
 
 #: Largest phase (rad) the fastest precession or vibration may turn per step
@@ -76,6 +81,15 @@ class State:
 
     def __init__(self, **fields):
         self.__dict__.update(fields)
+
+    def __getstate__(self):
+        # the fused step's compiled pieces are a cache, rebuilt on use: not data
+        state = dict(self.__dict__)
+        state.pop("fused", None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
 
 
 def _same(a, b):
@@ -432,7 +446,11 @@ class SpinLatticeDynamics(MolecularDynamics):
         _write(arrays, "positions", st.q)
         _write(arrays, "momenta", st.p)
         if self.magnetic:
-            _write(arrays, "initial_magmoms", st.mu[:, None] * st.s)
+            now = arrays.get("initial_magmoms")
+            if now is not None and now.dtype == np.float64 and now.shape == st.s.shape:
+                np.multiply(st.mu[:, None], st.s, out=now)  # in place, no temporary
+            else:
+                _write(arrays, "initial_magmoms", st.mu[:, None] * st.s)
         st.observables = None
         self._remember_written()
 
@@ -477,7 +495,7 @@ class SpinLatticeDynamics(MolecularDynamics):
         """The one lattice evaluation of a step: F_L(q̃) (and E_L if logged)."""
         st = self._state
         virial = want_energy and getattr(self, "_frame_virial", False)
-        res = self.ev.lattice(q, Want(forces=True, energy=want_energy, virial=virial))
+        res = self.ev.lattice(q, _LATTICE[bool(want_energy), bool(virial)])
         st.FL = res.forces
         st.EL = res.energy if want_energy else None
         st.EL_terms = res.energy_terms if want_energy else None
@@ -487,16 +505,45 @@ class SpinLatticeDynamics(MolecularDynamics):
         """F_L + the spin terms' lattice forces at spins W, from prepared
         operators (a new array)."""
         F = FL.copy()
-        self.ev.spin(operators, W, _FORCES, forces=F)
+        # each operator adds its forces (SpinOperator.add): what Evaluator.spin
+        # does, without its bookkeeping, several times a step
+        for op in operators:
+            op.add(W, _FORCES, _NO_FIELD, F, _NO_ENERGIES)
         return F
+
+    def _kick_drift(self, F, q, h, reference):
+        """The half kick P = p + (h/2) F(q) from the state's momenta and the
+        drift q̃ = q + h P/m (:func:`kernels.kick` and :meth:`_drift`). Returns
+        (q̃, P, the rounding error of q̃, max_i |q̃_i − q_i|, that atom,
+        max |q̃ − reference|, max |q|). Without constraints in one compiled pass
+        (:func:`kernels.kick_drift`, the same arithmetic)."""
+        st = self._state
+        if self.atoms.constraints:
+            P = np.empty_like(st.p)
+            kernels.kick(st.p, 0.5 * h, self._md_forces(F, q), st.carry_p, P, st.carry_mid)
+            qt, P, carry = self._drift(q, P, h)
+            moved, atom = max_displacement(q, qt)
+            return (qt, P, carry, moved, atom, kernels.max_abs_difference(qt, reference),
+                    float(np.abs(q).max()))
+        P = np.empty_like(q)
+        qt = np.empty_like(q)
+        carry = np.empty_like(q)
+        moved, atom, apart, largest = kernels.kick_drift(
+            threads.count(), st.p, 0.5 * h, F, st.carry_p, P, st.carry_mid, q,
+            self.masses[:, 0], h, st.carry_q, qt, carry, reference)
+        return qt, P, carry, moved, atom, apart, largest
 
     def _check_displacement(self, q, qt, h):
         """One step may move an atom at most half the neighbour-list skin: that
         keeps one pair list valid at both q and q̃, and anything near it means the
         lattice integration has blown up (a Störmer–Verlet step moves atoms by
         ~1e-3 Å at ordinary temperatures and timesteps)."""
-        limit = 0.5 * self.ev.skin
         moved, atom = max_displacement(q, qt)
+        self._check_moved(moved, atom, h)
+
+    def _check_moved(self, moved, atom, h):
+        """:meth:`_check_displacement` given the largest displacement."""
+        limit = 0.5 * self.ev.skin
         if not moved <= limit:
             raise UnstableStepError(
                 f"atom {atom} moved {moved:.3g} Å in one step (at most half the "

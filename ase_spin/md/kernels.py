@@ -615,6 +615,72 @@ def kick(p, a, f, carry, out, carry_out):
             out[i, c] = t
 
 
+
+@threaded()
+def kick_drift(nthreads, p, a, f, carry_p, P, carry_mid, q, m, h, carry_q, qt, carry_qt,
+               reference):
+    """:func:`kick` then :func:`drift` in one pass, the same arithmetic in the
+    same order (so bitwise the same results):
+
+        P = p + a f,   q̃ = q + h P / m      (both compensated, as there),
+
+    and what the integrators check of q̃ in the same pass. Returns (max_i |q̃_i −
+    q_i|, that atom, max |q̃ − ``reference``| over all elements, max |q| over
+    all elements); the first two as :func:`~ase_spin.neighbors.max_displacement`
+    gives them, the third as :func:`max_abs_difference`. Fixed chunks over
+    atoms (``nthreads``), whose maxima combine in chunk order."""
+    n = q.shape[0]
+    worst = np.zeros(nthreads)
+    where = np.zeros(nthreads, dtype=np.int64)
+    apart = np.zeros(nthreads)
+    largest = np.zeros(nthreads)
+    for t in nb.prange(nthreads):
+        w2 = 0.0
+        at = (n * t) // nthreads
+        d = 0.0
+        big = 0.0
+        for i in range((n * t) // nthreads, (n * (t + 1)) // nthreads):
+            f_m = h / m[i]
+            for c in range(3):
+                y = a * f[i, c] + carry_p[i, c]
+                u = p[i, c] + y
+                carry_mid[i, c] = y - (u - p[i, c])
+                P[i, c] = u
+                b = f_m * u + carry_q[i, c]
+                x = q[i, c] + b
+                carry_qt[i, c] = b - (x - q[i, c])
+                qt[i, c] = x
+                e = abs(x - reference[i, c])
+                if not e <= d:
+                    d = e
+                e = abs(q[i, c])
+                if not e <= big:
+                    big = e
+            dx = qt[i, 0] - q[i, 0]
+            dy = qt[i, 1] - q[i, 1]
+            dz = qt[i, 2] - q[i, 2]
+            d2 = dx * dx + dy * dy + dz * dz
+            if not d2 <= w2:
+                w2 = d2
+                at = i
+        worst[t] = w2
+        where[t] = at
+        apart[t] = d
+        largest[t] = big
+    w2 = 0.0
+    at = 0
+    d = 0.0
+    big = 0.0
+    for t in range(nthreads):
+        if not worst[t] <= w2:
+            w2 = worst[t]
+            at = where[t]
+        if not apart[t] <= d:
+            d = apart[t]
+        if not largest[t] <= big:
+            big = largest[t]
+    return np.sqrt(w2), at, d, big
+
 # Polynomial extrapolation from the last k+1 values, newest first: row k is order k.
 _EXTRAPOLATION = np.array([[1.0, 0.0, 0.0, 0.0],
                            [2.0, -1.0, 0.0, 0.0],

@@ -88,11 +88,11 @@ class SuzukiTrotter(SpinLatticeDynamics):
         # F(q, s) from the end of the last (sub)step, else computed
         F = st.end_forces if st.end_forces is not None else self._spin_forces(st.ops, st.s,
                                                                               st.FL)
-        P = np.empty_like(st.p)
-        kernels.kick(st.p, 0.5 * h, self._md_forces(F, st.q), st.carry_p, P, st.carry_mid)
+        # the kick and the drift in one pass (the spin half step between them
+        # touches neither q nor p)
+        qt, P, st.carry_q, moved, atom, _, _ = self._kick_drift(F, st.q, h, st.q)
         self._spin_half_step(st.ops, h)
-        qt, P, st.carry_q = self._drift(st.q, P, h)
-        self._check_displacement(st.q, qt, h)
+        self._check_moved(moved, atom, h)
         st.ops = ev.spin_operators(qt, out=st.ops, half=False)
         self._spin_half_step(st.ops, h)
         self._lattice_at(qt, want_energy)

@@ -231,6 +231,14 @@ class Term(Parameterised):
         again whenever the system's cell, periodicity or moments change."""
         raise NotImplementedError
 
+    def compiled_lattice(self, pairs, types, table):
+        """Optional, for lattice terms: this term's forces as a compiled piece
+        of the integrators' fused step for tiny systems (:mod:`ase_spin.md.fused`):
+        ``(f, data)`` with ``f(positions, data, forces)`` a numba function adding
+        bitwise the forces :meth:`compute` adds with ``Want(forces=True)``, serially.
+        None (the default): the integrators take their general path."""
+        return None
+
     def lammps(self, types):
         """This term as LAMMPS input, for :func:`ase_spin.lammps.write_lammps`: a
         list of :class:`~ase_spin.lammps.LammpsPair` (a pair style, its
@@ -264,6 +272,23 @@ class SpinOperator:
     """
 
     site = None
+
+    def compiled(self):
+        """Optional: this operator as compiled pieces of the integrators' fused
+        step for tiny systems (:mod:`ase_spin.md.fused`), ``(forces, geometry,
+        couplings, data)``, numba functions that do serially and bitwise what
+        the methods do:
+
+        - ``forces(W, data, F)``: add the lattice forces at spins W (:meth:`add`
+          with ``Want(forces=True)``);
+        - ``geometry(positions, data, other)``: refill ``data`` at new positions,
+          with the midpoint quantities from the operator of ``other`` (the term's
+          ``prepare(positions, out=this, mean_with=that)``);
+        - ``couplings(data) -> (row, nbr, c)``: the midpoint field as
+          B̄_i = Σ_k c_k W_j over a half pair list (``linear_pairs(mean=True)``).
+
+        None (the default): the integrators take their general path."""
+        return None
 
     def field(self, W, out, mean=False):
         raise NotImplementedError

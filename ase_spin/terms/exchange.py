@@ -152,12 +152,26 @@ class ExchangeOperator(SpinOperator):
     the same pass over the pairs.
     """
 
-    __slots__ = ("pairs", "J", "G", "D", "Jbar", "offset")
+    __slots__ = ("pairs", "J", "G", "D", "Jbar", "offset", "params")
 
     def __init__(self, pairs, J, G, D, offset=0.0):
         self.pairs, self.J, self.G, self.D = pairs, J, G, D
         self.Jbar = None
         self.offset = offset
+        # (rc², form, p0, p1, p2) of a one-species compiled coupling, else None
+        self.params = None
+
+    def compiled(self):
+        """The fused step's pieces (see :meth:`SpinOperator.compiled`): on a
+        half pair list, one species, a compiled coupling, no virial."""
+        p = self.pairs
+        if not p.half or self.params is None or self.D is not None:
+            return None
+        if self.Jbar is None or len(self.Jbar) != len(self.J):
+            self.Jbar = np.empty(len(self.J))
+        return (_exchange_forces, _exchange_geometry, _exchange_couplings,
+                (threads.count(), p.row, p.j, p.image, p.images, self.J, self.G, self.Jbar,
+                 self.offset, self.params))
 
     def linear_pairs(self, mean=False):
         """(pairs, c) with B_i = Σ_j c_k W_j over the pairs k = (i → j): the
@@ -342,12 +356,15 @@ class Exchange(SpinTerm):
             D = op.D if op.D is not None else _NO_D
             if table.shape[0] == 1:
                 # one species: parameters as scalars, no per-pair table lookups
+                op.params = tuple(table[0, 0])
                 _geometry_single(positions, pairs.row, pairs.j, pairs.image, pairs.images,
-                                 *table[0, 0], op.J, op.G, D, op.D is not None, other, Jbar)
+                                 *op.params, op.J, op.G, D, op.D is not None, other, Jbar)
             else:
+                op.params = None
                 _geometry_kernel(positions, pairs.row, pairs.j, pairs.image, pairs.images,
                                  types, table, op.J, op.G, D, op.D is not None, other, Jbar)
             return op
+        op.params = None
         i = pairs.i
         d = (positions[pairs.j] - positions[i]) + pairs.shift
         r2 = np.einsum("ij,ij->i", d, d)
@@ -735,3 +752,33 @@ def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B
     reduce_threads(bbuf, B)
     reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
     return sum_over_threads(acc)
+
+
+_geometry_single_serial = _geometry_single.serial
+_spin_pass_half_serial = _spin_pass_half_kernel.serial
+
+
+@nb.njit(cache=True)
+def _exchange_forces(W, data, F):
+    """F += the exchange forces at spins W (:meth:`ExchangeOperator.add`, forces
+    only, serial twin): a piece of the fused step."""
+    nthreads, row, nbr, image, images, J, G, Jbar, offset, params = data
+    _spin_pass_half_serial(nthreads, row, nbr, J, G, np.zeros((0, 3)), W, offset,
+                           np.zeros((0, 3)), F, np.zeros(0), False, True, False, False, False)
+
+
+@nb.njit(cache=True)
+def _exchange_geometry(positions, data, other):
+    """J, G and the midpoint couplings J̄ = ½(J + J_other) at ``positions``
+    (:meth:`Exchange.prepare` with ``out`` and ``mean_with``, one species,
+    serial twin): a piece of the fused step."""
+    nthreads, row, nbr, image, images, J, G, Jbar, offset, params = data
+    rc2, form, p0, p1, p2 = params
+    _geometry_single_serial(positions, row, nbr, image, images, rc2, form, p0, p1, p2, J, G,
+                            np.zeros((0, 3)), False, other[5], Jbar)
+
+
+@nb.njit(cache=True)
+def _exchange_couplings(data):
+    """(row, nbr, J̄): the midpoint field B̄_i = Σ_j J̄_ij W_j on the half list."""
+    return data[1], data[2], data[7]

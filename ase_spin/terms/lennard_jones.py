@@ -155,6 +155,12 @@ class LennardJones(Term):
                          want.energy, want.energies, want.virial)
         return out[0], out[1:]
 
+    def compiled_lattice(self, pairs, types, table):
+        """The forces of :meth:`compute` as a compiled piece (see
+        :meth:`Term.compiled_lattice`)."""
+        return _lj_forces, (threads.all_threads(), pairs.row, pairs.j, pairs.image,
+                            pairs.images, types, table)
+
 
 @nb.njit(cache=True, inline="always")
 def _lj_pair(r2, table, ti, tj):
@@ -254,3 +260,15 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
     reduce_threads(fbuf, forces)
     reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
     return sum_over_threads(acc)
+
+
+_lj_serial = _lj_kernel.serial
+
+
+@nb.njit(cache=True)
+def _lj_forces(positions, data, forces):
+    """F += the Lennard-Jones forces (:func:`_lj_kernel`, serial twin, the
+    chunks of ``data``): the term's piece of the fused step."""
+    nthreads, row, nbr, image, images, types, table = data
+    _lj_serial(nthreads, positions, row, nbr, image, images, types, table, forces,
+               np.zeros(0), True, False, False, False)

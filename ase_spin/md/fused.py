@@ -1,0 +1,243 @@
+"""One compiled CollectivePRK step for tiny systems, composed from the terms'
+compiled pieces.
+
+A step of the paper's 30-atom chain is a dozen kernel calls that each take a
+microsecond or two of work and several of Python around them. Here the whole
+second-order step (kicks, drifts, geometry, midpoint solves, the checks between
+them) is one numba function, compiled once per combination of pieces from what
+the terms expose (:meth:`~ase_spin.terms.base.Term.compiled_lattice`,
+:meth:`~ase_spin.terms.base.SpinOperator.compiled`) — the integrator never sees a
+term's internals, and a term without the pieces simply keeps the general path.
+
+The pieces are the serial twins of the same kernels the general path calls,
+with the same arguments in the same order, so the results are the same bit for
+bit. Whatever the general path would stop at (an atom moving too far, a pair
+list to rebuild, a midpoint solve that fails, non-finite forces) makes the
+fused step give up before it has changed any state; the general path then takes
+the step (and raises its error, if any).
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from .. import threads
+from ..neighbors import all_finite, max_displacement
+from ..terms.base import compile_with
+from . import kernels
+
+__all__ = ["collective_step", "step_function"]
+
+_EPS = float(np.finfo(float).eps)
+#: Outer iterations (q̃ and W settling) allowed, as in CollectivePRK.
+MAX_OUTER = 12
+_DONE, _GIVE_UP = 0, 1
+
+
+def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, scale, tol,
+          floor, max_iter, theta, lattice, op_q, op_t, reference, half_skin, settled_tol,
+          memory, local, switch):
+    """The skeleton of the fused step (compiled with ``lattice_forces``,
+    ``spin_forces``, ``spin_geometry`` and ``spin_couplings`` bound to the
+    terms' pieces): CollectivePRK._coupled_step for one spin operator on a
+    half pair list, no constraints, no energy wanted. Returns (status, q̃, p̃,
+    s̃, carry of q̃, carry of s̃, F_L(q̃), W, the other W buffer, θ, sweeps,
+    geometries); status 1: give up, nothing but scratch buffers was written.
+    ``memory``, ``local``: the midpoint solver (kernels.midpoint_solve_half);
+    a solve contracting by more than ``switch`` per sweep also gives up, so
+    that CollectivePRK's ``solver="auto"`` makes its switch on the general path."""
+    qt_used = q
+    first = True
+    settled = False
+    qtol = 0.0
+    iterations = 0
+    geometries = 0
+    qt = q
+    P = p
+    carry_qt = carry_q
+    stilde = s
+    carry = carry_s
+    for _ in range(MAX_OUTER):
+        F = FL.copy()
+        spin_forces(W, op_q, F)  # noqa: F821 - bound per combination of terms
+        P = np.empty_like(p)
+        qt = np.empty_like(q)
+        carry_qt = np.empty_like(q)
+        moved, atom, apart, largest = kick_drift(  # noqa: F821
+            1, p, 0.5 * h, F, carry_p, P, carry_mid, q, m, h, carry_q, qt, carry_qt, qt_used)
+        if first:
+            if not moved <= half_skin:
+                return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0)
+            qtol = 4.0 * _EPS * max(1.0, largest)
+            first = False
+        elif apart <= qtol:
+            settled = True
+            break
+        # the pair list must stay valid at q̃ (else the general path rebuilds it)
+        if not max_displacement(qt, reference)[0] <= half_skin:
+            return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0)
+        spin_geometry(qt, op_t, op_q)  # noqa: F821
+        geometries += 1
+        row, nbr, c = spin_couplings(op_t)  # noqa: F821
+        stilde = np.zeros_like(s)
+        carry = np.zeros_like(s)
+        its, delta, status, which, measured, moved_w = solve_half(  # noqa: F821
+            1, row, nbr, c, s, W, Wnext, stilde, scale, tol, floor, max_iter,
+            min(1.0, 2.0 * theta), carry_s, carry, memory, local)
+        if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch):
+            return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0)
+        if measured < 1.0:
+            theta = measured
+        if which == 1:
+            W, Wnext = Wnext, W
+        iterations += its
+        qt_used = qt
+        if moved_w <= settled_tol:
+            settled = True
+            break
+    if not settled:
+        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0)
+    FLt = np.zeros_like(q)
+    lattice_forces(qt, lattice, FLt)  # noqa: F821
+    if not all_finite(FLt):
+        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0)
+    F = FLt.copy()
+    spin_forces(W, op_t, F)  # noqa: F821
+    kick(P, 0.5 * h, F, carry_mid, P, carry_p)  # noqa: F821
+    return (_DONE, qt, P, stilde, carry_qt, carry, FLt, W, Wnext, theta, iterations,
+            geometries)
+
+
+def _both(positions, data, forces):
+    """Two lattice pieces in turn (the terms' order, as Evaluator.lattice)."""
+    first_lattice(positions, data[0], forces)  # noqa: F821
+    second_lattice(positions, data[1], forces)  # noqa: F821
+
+
+@nb.njit(cache=True)
+def _no_lattice(positions, data, forces):
+    pass
+
+
+_steps = {}
+
+
+def step_function(lattice, spin):
+    """The fused step for a lattice piece and a spin operator's pieces
+    (compiled once per combination, cached on disk)."""
+    key = (lattice, *spin)
+    fn = _steps.get(key)
+    if fn is None:
+        forces, geometry, couplings = spin
+        fn = _steps[key] = compile_with(
+            _step, {"lattice_forces": lattice, "spin_forces": forces,
+                    "spin_geometry": geometry, "spin_couplings": couplings,
+                    "kick_drift": kernels.kick_drift.serial, "kick": kernels.kick.serial,
+                    "solve_half": kernels.midpoint_solve_half.serial},
+            f"{lattice.__name__}_{forces.__name__}")
+    return fn
+
+
+_pairs_of = {}
+
+
+def _lattice_pieces(ev):
+    """(function, data) of all lattice terms together, or None if one has no
+    compiled piece."""
+    pieces = []
+    for t, table in zip(ev.hamiltonian.terms, ev._tables):
+        if t.spin_dependent:
+            continue
+        piece = t.compiled_lattice(ev._pairs(t, half=True), ev.types, table)
+        if piece is None:
+            return None
+        pieces.append(piece)
+    if not pieces:
+        return _no_lattice, ()
+    fn, data = pieces[0]
+    for f2, d2 in pieces[1:]:
+        key = (fn, f2)
+        both = _pairs_of.get(key)
+        if both is None:
+            both = _pairs_of[key] = compile_with(
+                _both, {"first_lattice": fn, "second_lattice": f2},
+                f"{fn.__name__}_{f2.__name__}")
+        fn, data = both, (data, d2)
+    return fn, data
+
+
+#: What the fused step does in place of these methods: a subclass that
+#: overrides one of them keeps the general path (its _predict and
+#: _remember_midpoint are called as they are).
+_REPLACED = ("_spin_forces", "_md_forces", "_kick_drift", "_drift", "_check_moved",
+             "_lattice_at", "_solve", "_adjust_momenta")
+_plain_classes = {}
+
+
+def _plain(cls):
+    plain = _plain_classes.get(cls)
+    if plain is None:
+        from .collective import CollectivePRK
+
+        plain = _plain_classes[cls] = all(getattr(cls, name) is getattr(CollectivePRK, name)
+                                          for name in _REPLACED)
+    return plain
+
+
+def collective_step(dyn, h, stage):
+    """CollectivePRK's second-order step of size h as one compiled call, when
+    the system is tiny and every term offers its pieces; returns (sweeps,
+    geometries), or None to take the general path (nothing changed)."""
+    st = dyn._state
+    ev = dyn.ev
+    if (not threads.tiny() or st.ops_next is None or len(st.ops) != 1
+            or ev.neighbors is None or dyn.atoms.constraints or not dyn.half_lists):
+        return None
+    if not _plain(type(dyn)):
+        return None
+    op_q, op_t = st.ops[0], st.ops_next[0]
+    token = ev.state_token
+    cached = getattr(st, "fused", None)  # (state token, lattice pieces or None)
+    if cached is None or cached[0] != token:
+        cached = st.fused = (token, _lattice_pieces(ev))
+    plan = cached[1]
+    if plan is None:
+        return None
+    piece_q = op_q.compiled()
+    piece_t = op_t.compiled()
+    if (piece_q is None or piece_t is None or piece_q[:3] != piece_t[:3]
+            or getattr(op_q, "pairs", None) is not getattr(op_t, "pairs", None)):
+        return None
+    lattice_fn, lattice_data = plan
+    step = step_function(lattice_fn, piece_t[:3])
+    scale = st.scales.get(h)
+    if scale is None:  # as CollectivePRK._solve
+        scale = st.scales[h] = (h * dyn.sigma / dyn.hbar) * st.rate
+    from .collective import _AUTO_JACOBI_SWEEPS, _AUTO_SWITCH, SOLVERS  # (imports us)
+    solver, max_iter, switch = dyn._solver, dyn.max_iter, np.inf
+    if solver == "auto":  # as CollectivePRK._solve: Jacobi until it contracts slowly
+        solver = st.modes.get((stage, h), "jacobi")
+        if solver == "jacobi":
+            max_iter, switch = min(max_iter, _AUTO_JACOBI_SWEEPS), _AUTO_SWITCH
+    memory, local = SOLVERS[solver]
+    W = dyn._predict(stage)
+    reference = ev.neighbors.reference
+    if reference is None or reference.shape != st.q.shape:
+        return None
+    (status, qt, P, s_new, carry_q, carry_s, FL, W, Wnext, theta, iterations,
+     geometries) = step(st.q, st.p, st.s, st.FL, dyn.masses[:, 0], h, st.carry_q, st.carry_p,
+                        st.carry_s, st.carry_mid, W, st.Wnext, scale, dyn.tol,
+                        64.0 * dyn.tol, max_iter, st.theta[stage], lattice_data,
+                        piece_q[3], piece_t[3], reference, 0.5 * ev.skin, 8.0 * dyn.tol,
+                        memory, local, switch)
+    if status != _DONE:
+        return None
+    st.theta[stage] = theta
+    st.Wnext = Wnext
+    st.FL, st.EL, st.EL_terms, st.VL = FL, None, None, None
+    st.carry_q, st.carry_s = carry_q, carry_s
+    dyn._remember_midpoint(stage, W)
+    st.q, st.p, st.s = qt, P, s_new
+    st.ops, st.ops_next = st.ops_next, st.ops
+    return iterations, geometries

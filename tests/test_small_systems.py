@@ -1,0 +1,320 @@
+"""The small-system paths: the fused kick–drift pass, serial heavy kernels for
+tiny systems, and the integrators' direct use of the operators' contract. Each
+must give bitwise the results of the general path it replaces."""
+
+import numpy as np
+import pytest
+from ase import units
+from ase.constraints import FixAtoms
+
+from ase_spin import (CollectivePRK, SpinLatticeCalculator, SuzukiTrotter, Want, get_spins,
+                      threads)
+from ase_spin.md import fused, kernels
+from ase_spin.md.collective import SpinConvergenceError
+from ase_spin.neighbors import max_displacement
+from ase_spin.scenes import fcc_cobalt, field_anisotropy_terms, paper_chain, paper_chain_terms
+from ase_spin.terms import Cubic, Exchange, LennardJones, lennard_jones
+
+
+@pytest.mark.parametrize("nthreads", [1, 2, 3])
+@pytest.mark.parametrize("twin", ["serial", "parallel"])
+def test_kick_drift_is_kick_then_drift_bitwise(nthreads, twin):
+    """One pass, the same arithmetic: P, q̃ and both carries equal kick then
+    drift bit for bit, and the three maxima equal max_displacement,
+    max_abs_difference and max|q| (any chunk count, either twin)."""
+    rng = np.random.default_rng(1)
+    n = 37
+    p, f, cp, q, cq = (rng.normal(size=(n, 3)) for _ in range(5))
+    cp *= 1e-17
+    cq *= 1e-16
+    q *= 30.0
+    m = rng.uniform(1.0, 60.0, n)
+    ref = q + 1e-3 * rng.normal(size=(n, 3))
+    a, h = 0.37, 0.74
+    P0, mid0, qt0, cq0 = (np.empty((n, 3)) for _ in range(4))
+    kernels.kick(p, a, f, cp, P0, mid0)
+    kernels.drift(q, P0, m, h, cq, qt0, cq0)
+    P1, mid1, qt1, cq1 = (np.empty((n, 3)) for _ in range(4))
+    kernel = getattr(kernels.kick_drift, twin)
+    moved, atom, apart, largest = kernel(nthreads, p, a, f, cp, P1, mid1, q, m, h, cq, qt1,
+                                         cq1, ref)
+    for x, y in ((P0, P1), (mid0, mid1), (qt0, qt1), (cq0, cq1)):
+        assert np.array_equal(x, y)
+    assert (moved, atom) == max_displacement(q, qt0)
+    assert apart == kernels.max_abs_difference(qt0, ref)
+    assert largest == np.abs(q).max()
+
+
+class _GeneralPath:
+    """The step's pieces as they were before the small-system work: the kick,
+    the drift and the checks as separate calls, the spin forces through
+    Evaluator.spin."""
+
+    def _kick_drift(self, F, q, h, reference):
+        st = self._state
+        P = np.empty_like(st.p)
+        kernels.kick(st.p, 0.5 * h, self._md_forces(F, q), st.carry_p, P, st.carry_mid)
+        qt, P, carry = self._drift(q, P, h)
+        moved, atom = max_displacement(q, qt)
+        return (qt, P, carry, moved, atom, kernels.max_abs_difference(qt, reference),
+                float(np.abs(q).max()))
+
+    def _spin_forces(self, operators, W, FL):
+        F = FL.copy()
+        self.ev.spin(operators, W, Want(forces=True), forces=F)
+        return F
+
+
+class _GeneralCollective(_GeneralPath, CollectivePRK):
+    pass
+
+
+class _GeneralSplitting(_GeneralPath, SuzukiTrotter):
+    pass
+
+
+def _trajectory(cls, atoms, dt, steps, **kwargs):
+    dyn = cls(atoms, dt, **kwargs)
+    dyn.run(steps)
+    return (atoms.positions.copy(), atoms.get_momenta(), get_spins(atoms),
+            dyn.get_total_energy())
+
+
+@pytest.mark.parametrize("scene", ["chain", "fcc32", "fcc", "fcc-field", "fixed"])
+@pytest.mark.parametrize("fast, general", [(CollectivePRK, _GeneralCollective),
+                                           (SuzukiTrotter, _GeneralSplitting)])
+def test_fast_step_equals_general_step_bitwise(scene, fast, general, monkeypatch):
+    """The fused pieces change no bit of a trajectory: the paper chain and fcc
+    Co N = 32 (tiny: CollectivePRK takes one compiled step), fcc Co N = 108 with
+    exchange only and with a field and anisotropy (several operators), and
+    with fixed atoms (the constrained path, used automatically)."""
+    used = _spy_fused(monkeypatch)
+    runs = []
+    for cls in (fast, general):
+        if cls is general:
+            monkeypatch.setattr(fused, "collective_step", lambda *args: None)
+        if scene == "chain":
+            atoms = paper_chain()
+            runs.append(_trajectory(cls, atoms, 2.0**-6, 60, hbar=1.0, precession="spin"))
+            continue
+        n = 2 if scene == "fcc32" else 3
+        atoms = fcc_cobalt(n, extra=field_anisotropy_terms() if scene == "fcc-field" else ())
+        if scene == "fixed":
+            atoms.set_constraint(FixAtoms([0, 7, 20]))
+        runs.append(_trajectory(cls, atoms, 0.2 * units.fs, 15))
+    for a, b in zip(*runs):
+        assert np.array_equal(a, b)
+    tiny = scene in ("chain", "fcc32")
+    assert (used["done"] > 0) == (tiny and fast is CollectivePRK)
+
+
+def _spy_fused(monkeypatch):
+    """Count the fused steps taken and given up."""
+    used = {"done": 0, "general": 0}
+    real = fused.collective_step
+
+    def spy(*args):
+        result = real(*args)
+        used["done" if result is not None else "general"] += 1
+        return result
+
+    monkeypatch.setattr(fused, "collective_step", spy)
+    return used
+
+
+class _PlainLJ(LennardJones):
+    """Lennard-Jones without its compiled piece: the fused step must not be used."""
+
+    def compiled_lattice(self, pairs, types, table):
+        return None
+
+
+class _PythonCubic(Cubic):
+    """The cubic coupling evaluated through values(r) (no compiled form)."""
+
+    _form = 3
+
+
+@pytest.mark.parametrize("case", ["lattice", "coupling"])
+def test_terms_without_compiled_pieces_take_the_general_path(case, monkeypatch):
+    """A term that offers no compiled piece (here LJ with compiled_lattice
+    None, or exchange with a coupling evaluated in Python) sends every step
+    down the general path, automatically, with the same trajectory bit for
+    bit as the fused step of the equivalent terms."""
+    lj, exchange = paper_chain_terms()
+    if case == "lattice":
+        terms = [_PlainLJ(lj.epsilon, lj.sigma, lj.rc), exchange]
+    else:
+        terms = [lj, Exchange(_PythonCubic(exchange.coupling.J0, exchange.coupling.rc))]
+    used = _spy_fused(monkeypatch)
+    atoms = paper_chain()
+    atoms.calc = SpinLatticeCalculator(terms)
+    slow = _trajectory(CollectivePRK, atoms, 2.0**-6, 40, hbar=1.0, precession="spin")
+    assert used["done"] == 0 and used["general"] > 0
+    fast = _trajectory(CollectivePRK, paper_chain(), 2.0**-6, 40, hbar=1.0, precession="spin")
+    assert used["done"] > 0
+    for a, b in zip(slow, fast):
+        if case == "lattice":
+            assert np.array_equal(a, b)
+        else:  # numpy's J(r) may differ from the kernel's in the last bit
+            assert np.allclose(a, b, rtol=1e-12, atol=1e-12)
+
+
+def test_subclass_overriding_a_step_piece_keeps_the_general_path(monkeypatch):
+    """A subclass that overrides a method the fused step stands in for (here
+    the spin forces) gets the general path, so its override is honoured."""
+    used = _spy_fused(monkeypatch)
+    _trajectory(_GeneralCollective, paper_chain(), 2.0**-6, 5, hbar=1.0, precession="spin")
+    assert used["done"] == 0 and used["general"] > 0
+
+
+def test_fused_step_composes_several_lattice_terms(monkeypatch):
+    """Two lattice terms (their pieces chained in the terms' order) in the
+    fused step: bitwise the general path's trajectory."""
+    lj, exchange = paper_chain_terms()
+    half = LennardJones(0.5 * lj.epsilon, lj.sigma, lj.rc)
+    runs = []
+    used = _spy_fused(monkeypatch)
+    for general in (False, True):
+        if general:
+            monkeypatch.setattr(fused, "collective_step", lambda *args: None)
+        atoms = paper_chain()
+        atoms.calc = SpinLatticeCalculator([half, LennardJones(0.5 * lj.epsilon, lj.sigma,
+                                                               lj.rc), exchange])
+        runs.append(_trajectory(CollectivePRK, atoms, 2.0**-6, 40, hbar=1.0,
+                                precession="spin"))
+    assert used["done"] > 0
+    for a, b in zip(*runs):
+        assert np.array_equal(a, b)
+
+
+def test_fused_step_gives_up_where_the_general_path_must_act(monkeypatch):
+    """Pair-list rebuilds within a run (a small skin), and a step whose
+    midpoint solve fails: the fused step leaves them to the general path —
+    the same trajectory bit for bit, and the same error with the atoms as
+    they were."""
+    used = _spy_fused(monkeypatch)
+    runs = []
+    for general in (False, True):
+        if general:
+            monkeypatch.setattr(fused, "collective_step", lambda *args: None)
+        atoms = fcc_cobalt(2)
+        atoms.calc = SpinLatticeCalculator(atoms.calc.hamiltonian.terms, skin=0.015)
+        dyn = CollectivePRK(atoms, 0.5 * units.fs)
+        dyn.run(40)
+        runs.append((atoms.positions.copy(), atoms.get_momenta(), get_spins(atoms),
+                     dyn.ev.neighbors.builds))
+    assert runs[0][3] > 3  # rebuilt within the run
+    assert used["done"] > 0 and used["general"] > runs[0][3] - 1
+    for a, b in zip(*runs):
+        assert np.array_equal(a, b)
+    monkeypatch.undo()
+    used = _spy_fused(monkeypatch)
+    atoms = paper_chain()
+    dyn = CollectivePRK(atoms, 2.0**-6, hbar=1.0, precession="spin")
+    dyn.run(3)
+    before = (atoms.positions.copy(), get_spins(atoms))
+    dyn.max_iter = 1
+    with pytest.raises(SpinConvergenceError, match="did not converge"):
+        dyn.run(1)
+    assert np.array_equal(atoms.positions, before[0])
+    assert np.array_equal(get_spins(atoms), before[1])
+    assert used["done"] > 0 and used["general"] > 0
+
+
+def test_constrained_step_takes_the_general_kick_drift(monkeypatch):
+    """With constraints the fused pass is not used (the constraints adjust
+    forces, positions and momenta between kick and drift)."""
+    calls = []
+    real = kernels.kick_drift
+
+    class Spy:
+        def __call__(self, *args):
+            calls.append(1)
+            return real(*args)
+
+    monkeypatch.setattr(kernels, "kick_drift", Spy())
+    atoms = fcc_cobalt(2)
+    CollectivePRK(atoms, 0.2 * units.fs).run(2)
+    assert calls
+    calls.clear()
+    atoms = fcc_cobalt(2)
+    atoms.set_constraint(FixAtoms([1]))
+    CollectivePRK(atoms, 0.2 * units.fs).run(2)
+    assert not calls
+
+
+def test_tiny_systems_run_every_kernel_serially_with_the_same_result(monkeypatch):
+    """Below SERIAL_ALL_BELOW atoms even the heavy kernels (Lennard-Jones, the
+    exchange geometry) run their serial twins, over the same fixed chunks:
+    an evaluation and a trajectory are bitwise those of the threaded twins."""
+    used = []
+    lj = lennard_jones._lj_kernel
+    serial = lj.serial
+    monkeypatch.setattr(lj, "_serial", lambda *a: used.append(1) or serial(*a))
+    atoms = paper_chain()
+    assert len(atoms) < threads.SERIAL_ALL_BELOW
+    ev, _ = atoms.calc.bound_evaluator(atoms)
+    want = Want(energy=True, forces=True, magnetic_forces=True)
+    spins = get_spins(atoms)
+    tiny = ev.evaluate(atoms.positions, spins, want)
+    assert used
+    run_tiny = _trajectory(CollectivePRK, paper_chain(), 2.0**-6, 40, hbar=1.0,
+                           precession="spin")
+    used.clear()
+    monkeypatch.setattr(threads, "SERIAL_ALL_BELOW", 0)
+    threaded = ev.evaluate(atoms.positions, spins, want)
+    assert not used
+    run_threaded = _trajectory(CollectivePRK, paper_chain(), 2.0**-6, 40, hbar=1.0,
+                               precession="spin")
+    assert tiny.energy == threaded.energy
+    assert np.array_equal(tiny.forces, threaded.forces)
+    assert np.array_equal(tiny.magnetic_forces, threaded.magnetic_forces)
+    for a, b in zip(run_tiny, run_threaded):
+        assert np.array_equal(a, b)
+
+
+def test_threads_for_nests_and_restores():
+    with threads.threads_for(10):
+        assert threads.count() == 1
+        with threads.threads_for(10**6):
+            assert threads.count() == threads.chunks()
+        assert threads.count() == 1
+    assert threads.count() == threads.chunks()
+
+
+def test_adaptive_step_restores_numba_threads_after_an_error():
+    import numba as nb
+
+    control = threads.AdaptiveThreads(1)
+    before = nb.get_num_threads()
+    with pytest.raises(KeyError):
+        with control.step(10):
+            assert nb.get_num_threads() == 1 and threads.count() == 1
+            raise KeyError
+    assert nb.get_num_threads() == before and threads.count() == threads.chunks()
+    assert not control.seen  # a failed step is not timed
+    with control.step(10):
+        pass
+    assert control.seen == {1: 1}
+
+
+
+def test_langevin_takes_the_fused_step_with_its_own_predictor(monkeypatch):
+    """Langevin (a CollectivePRK with its own predictor and baths around the
+    step) on a tiny system: the fused step, bitwise the general path's run."""
+    from ase_spin import Langevin
+
+    used = _spy_fused(monkeypatch)
+    runs = []
+    for general in (False, True):
+        if general:
+            monkeypatch.setattr(fused, "collective_step", lambda *args: None)
+        atoms = fcc_cobalt(2)
+        dyn = Langevin(atoms, 0.5 * units.fs, 300.0, spin_damping=0.1,
+                       friction=0.01 / units.fs, rng=3)
+        dyn.run(10)
+        runs.append((atoms.positions.copy(), atoms.get_momenta(), get_spins(atoms)))
+    assert used["done"] > 0
+    for a, b in zip(*runs):
+        assert np.array_equal(a, b)
