@@ -27,9 +27,11 @@ BLOCK = 256
 
 
 @nb.njit(cache=True, inline="always")
-def _reflect(i, s, wx, wy, wz, bx, by, bz, scale, stilde, carry, carry_out, nxt):
-    """End point and next midpoint of spin i for midpoint direction W_i = (wx,
-    wy, wz) and midpoint field B̄_i = (bx, by, bz): see :func:`_midpoint_update`."""
+def _reflect(i, s, wx, wy, wz, bx, by, bz, scale, stilde, carry, carry_out):
+    """End point of spin i (into ``stilde``, its rounding error into
+    ``carry_out``) for midpoint direction W_i = (wx, wy, wz) and midpoint field
+    B̄_i = (bx, by, bz), as the reflection of s_i about v = 2 s_i + c_i W_i × B̄_i
+    (see :func:`_midpoint_update`). Returns (v, |v|²)."""
     sx = s[i, 0]
     sy = s[i, 1]
     sz = s[i, 2]
@@ -59,10 +61,7 @@ def _reflect(i, s, wx, wy, wz, bx, by, bz, scale, stilde, carry, carry_out, nxt)
     stilde[i, 0] = tx
     stilde[i, 1] = ty
     stilde[i, 2] = tz
-    inv = 1.0 / np.sqrt(vv)
-    nxt[i, 0] = vx * inv
-    nxt[i, 1] = vy * inv
-    nxt[i, 2] = vz * inv
+    return vx, vy, vz, vv
 
 
 @nb.njit(cache=True, inline="always")
@@ -85,8 +84,15 @@ def _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out
     wx = cur[i, 0]
     wy = cur[i, 1]
     wz = cur[i, 2]
-    _reflect(i, s, wx, wy, wz, bx, by, bz, scale, stilde, carry, carry_out, nxt)
-    return max(abs(nxt[i, 0] - wx), abs(nxt[i, 1] - wy), abs(nxt[i, 2] - wz))
+    vx, vy, vz, vv = _reflect(i, s, wx, wy, wz, bx, by, bz, scale, stilde, carry, carry_out)
+    inv = 1.0 / np.sqrt(vv)
+    vx *= inv
+    vy *= inv
+    vz *= inv
+    nxt[i, 0] = vx
+    nxt[i, 1] = vy
+    nxt[i, 2] = vz
+    return max(abs(vx - wx), abs(vy - wy), abs(vz - wz))
 
 
 @nb.njit(cache=True, inline="always")
@@ -135,65 +141,21 @@ def _local_midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, car
     """One spin's locally exact update: W_i solved exactly for the field B̄_i =
     (bx, by, bz) of the current iterate (:func:`local_midpoint`, for the spin
     p = s_i + carry), the next iterate; the end point from it as in
-    :func:`_midpoint_update` (reflection of s_i about v = 2 p + c W_i × B̄_i,
-    compensated sum), with |v|² = y, the root of :func:`local_midpoint` (equal
-    to it up to the rounding of W_i; κ, which it divides, is itself of that
-    order). Where the local equation has no root, the Jacobi update. Returns
-    max |ΔW_i| over components, or 4 (more than any change of unit vectors:
-    "not converged") where c_i|B̄_i| > :data:`MAX_TURN` |s_i|."""
-    sx = s[i, 0]
-    sy = s[i, 1]
-    sz = s[i, 2]
-    cx = carry[i, 0]
-    cy = carry[i, 1]
-    cz = carry[i, 2]
-    px = sx + cx
-    py = sy + cy
-    pz = sz + cz
+    :func:`_midpoint_update` (:func:`_reflect`). Where the local equation has no
+    root, the Jacobi update. Returns max |ΔW_i| over components, or 4 (more
+    than any change of unit vectors: "not converged") where c_i|B̄_i| >
+    :data:`MAX_TURN` |s_i|."""
+    px = s[i, 0] + carry[i, 0]
+    py = s[i, 1] + carry[i, 1]
+    pz = s[i, 2] + carry[i, 2]
     c = scale[i]
-    pb = px * bx + py * by + pz * bz
-    cc = c * c
-    cb = cc * (bx * bx + by * by + bz * bz)
-    pp = px * px + py * py + pz * pz
-    if cb > MAX_TURN * MAX_TURN * pp:
+    if c * c * (bx * bx + by * by + bz * bz) > MAX_TURN * MAX_TURN * (px * px + py * py
+                                                                      + pz * pz):
         return 4.0  # refused: reported as not converged (see MAX_TURN)
-    q = 4.0 * pp - cb
-    r = 4.0 * cc * pb * pb
-    root = np.sqrt(q * q + 4.0 * r)
-    if q >= 0.0:
-        y = 0.5 * (q + root)
-    else:
-        y = 2.0 * r / (root - q)
-    if not y > 0.0:
+    wx, wy, wz, found = local_midpoint(px, py, pz, bx, by, bz, c)
+    if not found:
         return _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out)
-    lam = np.sqrt(y)
-    inv_y = 1.0 / y
-    a = c * lam * inv_y
-    f = a * a * pb
-    g = 2.0 * lam / (y + cb)
-    wx = g * (px + a * (py * bz - pz * by) + f * bx)
-    wy = g * (py + a * (pz * bx - px * bz) + f * by)
-    wz = g * (pz + a * (px * by - py * bx) + f * bz)
-    dx = c * (wy * bz - wz * by)
-    dy = c * (wz * bx - wx * bz)
-    dz = c * (wx * by - wy * bx)
-    vx = 2.0 * px + dx
-    vy = 2.0 * py + dy
-    vz = 2.0 * pz + dz
-    kappa = (2.0 * ((sx * dx + sy * dy + sz * dz) + (cx * dx + cy * dy + cz * dz))
-             + (dx * dx + dy * dy + dz * dz)) * inv_y
-    ax = cx + (dx - kappa * vx)
-    ay = cy + (dy - kappa * vy)
-    az = cz + (dz - kappa * vz)
-    tx = sx + ax
-    ty = sy + ay
-    tz = sz + az
-    carry_out[i, 0] = ax - (tx - sx)
-    carry_out[i, 1] = ay - (ty - sy)
-    carry_out[i, 2] = az - (tz - sz)
-    stilde[i, 0] = tx
-    stilde[i, 1] = ty
-    stilde[i, 2] = tz
+    _reflect(i, s, wx, wy, wz, bx, by, bz, scale, stilde, carry, carry_out)
     ox = cur[i, 0]
     oy = cur[i, 1]
     oz = cur[i, 2]

@@ -17,6 +17,7 @@ from ..hamiltonian import Want
 from ..validate import flag, real_scalar
 from . import kernels
 from .collective import CollectivePRK
+from .kernels import _extrapolated
 from .logger import SpinMDLogger
 from ..threads import threaded
 
@@ -198,9 +199,9 @@ def predict_midpoint(s, B, c, R0, R1, R2, R3, coef, out):
             out[i, 2] = 0.0
             continue
         vx, vy, vz = _explicit_midpoint(sx, sy, sz, B[i, 0], B[i, 1], B[i, 2], c[i])
-        vx += coef[0] * R0[i, 0] + coef[1] * R1[i, 0] + coef[2] * R2[i, 0] + coef[3] * R3[i, 0]
-        vy += coef[0] * R0[i, 1] + coef[1] * R1[i, 1] + coef[2] * R2[i, 1] + coef[3] * R3[i, 1]
-        vz += coef[0] * R0[i, 2] + coef[1] * R1[i, 2] + coef[2] * R2[i, 2] + coef[3] * R3[i, 2]
+        vx += _extrapolated(coef, R0, R1, R2, R3, i, 0)
+        vy += _extrapolated(coef, R0, R1, R2, R3, i, 1)
+        vz += _extrapolated(coef, R0, R1, R2, R3, i, 2)
         x, y, z = _unit(vx, vy, vz)
         out[i, 0] = x
         out[i, 1] = y

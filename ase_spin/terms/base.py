@@ -593,9 +593,6 @@ def compile_with(skeleton, functions, name, parallel=False):
     return nb.njit(cache=True)(fn)
 
 
-_compile_with = compile_with  # its former name
-
-
 class PairSpinTerm(SpinTerm):
     """A spin term that is a sum over pairs, built on :func:`_pair_pass`.
 
