@@ -229,7 +229,7 @@ def collective_step(dyn, h, stage):
      geometries) = step(st.q, st.p, st.s, st.FL, dyn.masses[:, 0], h, st.carry_q, st.carry_p,
                         st.carry_s, st.carry_mid, W, st.Wnext, scale, dyn.tol,
                         64.0 * dyn.tol, max_iter, st.theta[stage], lattice_data,
-                        piece_q[3], piece_t[3], reference, 0.5 * ev.skin, 8.0 * dyn.tol,
+                        piece_q[3], piece_t[3], reference, 0.5 * ev.skin, dyn._settled_tol(),
                         memory, local, switch)
     if status != _DONE:
         return None

@@ -17,7 +17,8 @@ from ..hamiltonian import Want
 from ..validate import flag, real_scalar
 from . import kernels
 from .collective import CollectivePRK
-from .kernels import _extrapolated
+from .gaussian import new_key, normal
+from .kernels import BLOCK, _extrapolated
 from .logger import SpinMDLogger
 from ..threads import threaded
 
@@ -27,6 +28,8 @@ _EB = Want(energy=True, magnetic_forces=True)
 _B = Want(magnetic_forces=True)
 _NO_FORCES = np.zeros((0, 3))
 _NO_ENERGIES = np.zeros(0)
+#: Outer-iteration settling tolerance with a bath on (see Langevin._settled_tol).
+_SETTLED = 1e-12
 
 
 # -- compiled per-spin pieces of the spin bath ------------------------------------
@@ -101,17 +104,19 @@ def _direction(B, i):
 
 
 @threaded()
-def bath_block(s, before, B, k1, sigma, xi, k2, magnetic):
+def bath_block(s, before, B, k1, sigma, key, k2, magnetic):
     """The spin bath between two collective steps, in place, per magnetic spin:
     s ← D_B(k2) N(σ, ξ) D_B(k1) s (:func:`_damped` with a = k|B_i|,
-    :func:`_diffused`; k = κ_i t per spin, 0: no damping; σ_i = 0: no noise),
-    the state before the last D written to ``before``."""
+    :func:`_diffused`; k = κ_i t per spin, 0: no damping; σ_i = 0: no noise;
+    ξ_i = Gaussian numbers 2i, 2i + 1 of stream ``key``), the state before the
+    last D written to ``before``."""
     for i in nb.prange(s.shape[0]):
         if not magnetic[i]:
             continue
         bx, by, bz, b = _direction(B, i)
         x, y, z = _damped(s[i, 0], s[i, 1], s[i, 2], bx, by, bz, k1[i] * b)
-        x, y, z = _diffused(x, y, z, sigma[i], xi[i, 0], xi[i, 1])
+        if sigma[i] != 0.0:
+            x, y, z = _diffused(x, y, z, sigma[i], normal(key, 2 * i), normal(key, 2 * i + 1))
         before[i, 0] = x
         before[i, 1] = y
         before[i, 2] = z
@@ -150,26 +155,42 @@ def noise_amplitude(d_tau):
     return np.sqrt(2.0 * d_tau * (1.0 + 5.0 * d_tau))
 
 
-@nb.njit(cache=True)
-def ornstein_uhlenbeck(p, xi, m, c1, c2, fix_com, out):
-    """out = c1 p + c2 √m ξ (c2 = √((1 − c1²) k_B T)); with ``fix_com`` the
-    change of the total momentum is taken off, mass-weighted. Returns the
-    change of the kinetic energy."""
+@threaded()
+def ornstein_uhlenbeck(p, key, m, c1, c2, fix_com, out):
+    """out_i = c1 p_i + c2 √m_i ξ_i (c2 = √((1 − c1²) k_B T); ξ_ia Gaussian
+    number 3i + a of stream ``key``); with ``fix_com`` the change of the total
+    momentum is taken off, mass-weighted. Returns the change of the kinetic
+    energy. Sums over fixed blocks of atoms, added in block order: the same
+    bits for any thread count."""
     n = p.shape[0]
+    nblocks = (n + BLOCK - 1) // BLOCK
+    part = np.zeros((nblocks, 4))
+    for blk in nb.prange(nblocks):
+        for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
+            r = c2 * np.sqrt(m[i])
+            part[blk, 3] += m[i]
+            for a in range(3):
+                v = c1 * p[i, a] + r * normal(key, 3 * i + a)
+                out[i, a] = v
+                part[blk, a] += v - p[i, a]
     dP = np.zeros(3)
     M = 0.0
-    for i in range(n):
-        r = c2 * np.sqrt(m[i])
-        M += m[i]
+    for blk in range(nblocks):
         for a in range(3):
-            out[i, a] = c1 * p[i, a] + r * xi[i, a]
-            dP[a] += out[i, a] - p[i, a]
+            dP[a] += part[blk, a]
+        M += part[blk, 3]
+    kinetic = np.zeros(nblocks)
+    for blk in nb.prange(nblocks):
+        dK = 0.0
+        for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
+            for a in range(3):
+                if fix_com:
+                    out[i, a] -= m[i] * dP[a] / M
+                dK += 0.5 * (out[i, a] * out[i, a] - p[i, a] * p[i, a]) / m[i]
+        kinetic[blk] = dK
     dK = 0.0
-    for i in range(n):
-        for a in range(3):
-            if fix_com:
-                out[i, a] -= m[i] * dP[a] / M
-            dK += 0.5 * (out[i, a] * out[i, a] - p[i, a] * p[i, a]) / m[i]
+    for blk in range(nblocks):
+        dK += kinetic[blk]
     return dK
 
 
@@ -312,8 +333,10 @@ class Langevin(CollectivePRK):
         Keep the total momentum as it is (the random and friction forces'
         sum is taken off, mass-weighted), as ASE's ``fixcm``.
     rng : numpy Generator, int seed or None
-        The random numbers (drawn in bulk, independent of the thread count); a
-        run is reproduced by restoring ``dyn.rng.bit_generator.state`` and
+        The random numbers: each bath move takes one 64-bit key from it and
+        draws its Gaussian numbers inside the compiled kernels
+        (:mod:`ase_spin.md.gaussian`: the same for any thread count); a run
+        is reproduced by restoring ``dyn.rng.bit_generator.state`` and
         keeping the output schedule (see docs/thermostats.md).
     hbar, precession, gyromagnetic, g, order, tol, max_iter, lattice, trajectory,
     logfile, loginterval, **kwargs
@@ -378,8 +401,6 @@ class Langevin(CollectivePRK):
         st.s_start = st.s
         st.B_start = None  # fields at s_start (from the bath's last pass), if known
         st.bath_coefficients = {}
-        st.xi_s = np.zeros((n, 2))
-        st.xi_p = np.zeros((n, 3))
         st.s_before = np.zeros((n, 3))
         st.no_damping = np.zeros(n)
 
@@ -433,6 +454,16 @@ class Langevin(CollectivePRK):
             self._closing_bath()
         return result
 
+    def _settled_tol(self):
+        """With a bath on, the step is not reversible and moves each spin by
+        random angles of order √(2Dh) (≥ 1e-6 in any run worth a bath): a kick
+        computed from a midpoint off by 1e-12 stands. CollectivePRK's 8 tol
+        (round-off) cost a third outer iteration in most steps, the noise
+        leaving the midpoint predictor ~3e-5 off (docs/benchmarks.md)."""
+        if self._spin_bath_on() or self.fr > 0.0:
+            return max(super()._settled_tol(), _SETTLED)
+        return super()._settled_tol()
+
     def _spin_bath_on(self):
         return self.magnetic and self.spin_damping > 0.0
 
@@ -460,12 +491,11 @@ class Langevin(CollectivePRK):
                 st.EB = self._spin_energy_fields()
             E0, B0 = st.EB
             k1, sigma = st.no_damping, sig_half
-        if noisy:
-            self.rng.standard_normal(out=st.xi_s)
-        else:
+        key = new_key(self.rng) if noisy else np.uint64(0)
+        if not noisy:
             sigma = st.no_damping
         mag = self.ev.magnetic
-        bath_block(st.s, st.s_before, B0, k1, sigma, st.xi_s, 0.5 * kappa_h, mag)
+        bath_block(st.s, st.s_before, B0, k1, sigma, key, 0.5 * kappa_h, mag)
         # y₀ = D_{B0}(h/2) c is in st.s; the fields at y₀ give the corrector
         B1 = self._spin_energy_fields(energy=False)[1]
         damp_from(st.s_before, B1, 0.5 * kappa_h, mag, st.s)
@@ -488,12 +518,12 @@ class Langevin(CollectivePRK):
         if not on:
             return
         kappa_h, _, sig_half, _ = self._coefficients()
-        sigma = sig_half
+        sigma, key = sig_half, np.uint64(0)
         if self.spin_temp > 0.0:
-            self.rng.standard_normal(out=st.xi_s)
+            key = new_key(self.rng)
         else:
             sigma = st.no_damping
-        bath_block(st.s, st.s_before, EB[1], 0.5 * kappa_h, sigma, st.xi_s, st.no_damping,
+        bath_block(st.s, st.s_before, EB[1], 0.5 * kappa_h, sigma, key, st.no_damping,
                    self.ev.magnetic)
         st.carry_s[:] = 0.0
         st.EB = self._spin_energy_fields()
@@ -563,10 +593,9 @@ class Langevin(CollectivePRK):
             return
         c1 = np.exp(-self.fr * tau)
         c2 = np.sqrt(-np.expm1(-2.0 * self.fr * tau) * self.temp)
-        xi = self.rng.standard_normal(out=st.xi_p)
         p = np.empty_like(st.p)
         m = self.masses[:, 0]
-        dK = ornstein_uhlenbeck(st.p, xi, m, c1, c2, self.fix_com, p)
+        dK = ornstein_uhlenbeck(st.p, new_key(self.rng), m, c1, c2, self.fix_com, p)
         if self.atoms.constraints:
             K0 = 0.5 * float(np.einsum("ij,ij->", st.p, st.p / self.masses))
             p = self._adjust_momenta(p, st.q)

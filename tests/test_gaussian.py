@@ -1,0 +1,73 @@
+"""The counter-based Gaussian numbers of the baths (ase_spin.md.gaussian).
+
+Tolerances are 5 standard errors of each estimator for the sample size (a
+false alarm about once in 3·10⁶ runs per check), with fixed keys.
+"""
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from ase_spin import threads
+from ase_spin.md.gaussian import fill_normal, new_key
+
+N = 2_000_000
+
+
+@pytest.fixture(scope="module")
+def sample():
+    x = np.empty(N)
+    fill_normal(np.uint64(20261124), x)
+    return x
+
+
+def test_moments(sample):
+    """Mean 0, variance 1, fourth moment 3, sixth 15: standard errors
+    √(1/N), √(2/N), √(96/N), √(10395 − 225)/√N."""
+    x = sample
+    assert abs(x.mean()) < 5 * np.sqrt(1 / N)
+    assert abs(x.var() - 1) < 5 * np.sqrt(2 / N)
+    assert abs((x**4).mean() - 3) < 5 * np.sqrt(96 / N)
+    assert abs((x**6).mean() - 15) < 5 * np.sqrt((10395 - 225) / N)
+
+
+def test_distribution_and_tails(sample):
+    """Kolmogorov–Smirnov against the normal CDF (p > 1e-4), and the counts
+    beyond 3 and 4 (the ziggurat's wedges and its tail strip, where an error
+    in the tables would show): binomial, 5 standard errors."""
+    assert stats.kstest(sample, "norm").pvalue > 1e-4
+    for t in (1.0, 3.0, 3.6541528853610088, 4.0):
+        p = 2 * stats.norm.sf(t)
+        count = np.count_nonzero(np.abs(sample) > t)
+        assert abs(count - N * p) < 5 * np.sqrt(N * p * (1 - p)), t
+
+
+def test_no_correlation_between_neighbours_or_keys(sample):
+    """Lag-1, lag-2 and cross-key correlations: standard error 1/√n."""
+    x = sample
+    for lag in (1, 2, 3):
+        assert abs(np.corrcoef(x[:-lag], x[lag:])[0, 1]) < 5 / np.sqrt(N)
+    y = np.empty(N)
+    fill_normal(np.uint64(20261125), y)  # the next key: unrelated streams
+    assert abs(np.corrcoef(x, y)[0, 1]) < 5 / np.sqrt(N)
+
+
+def test_same_numbers_serial_and_threaded():
+    """Each number depends on (key, index) only: the serial twin and the
+    threaded kernel give the same bits; any shape fills in flat order."""
+    a = np.empty((5000, 3))
+    fill_normal(np.uint64(7), a)
+    b = np.empty(15000)
+    with threads.threads_for(10):  # a small system: the serial twin
+        fill_normal(np.uint64(7), b)
+    assert np.array_equal(a.reshape(-1), b)
+
+
+def test_keys_follow_the_generator():
+    """Restoring the Generator's state gives the same keys (restarts)."""
+    rng = np.random.default_rng(3)
+    state = rng.bit_generator.state
+    keys = [new_key(rng) for _ in range(3)]
+    assert len(set(int(k) for k in keys)) == 3
+    rng.bit_generator.state = state
+    assert [new_key(rng) for _ in range(3)] == keys
