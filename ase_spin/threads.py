@@ -177,6 +177,49 @@ def _threads_setting(value):
     return value
 
 
+def _cores():
+    try:
+        return os.sched_getaffinity(0)
+    except AttributeError:  # not Linux
+        return range(os.cpu_count() or 1)
+
+
+def _cpu_busy():
+    """(busy, total) CPU time of the whole machine from /proc/stat (clock ticks)."""
+    with open("/proc/stat") as f:
+        fields = [int(x) for x in f.readline().split()[1:]]
+    idle = fields[3] + (fields[4] if len(fields) > 4 else 0)  # idle + iowait
+    return sum(fields) - idle
+
+
+_taken = (-1e9, 0.0)  # (when measured, cores taken by other processes)
+
+
+def cores_taken_by_others(window=0.05, valid=10.0):
+    """How many cores other processes keep busy now: the machine's busy CPU
+    time over ``window`` seconds (/proc/stat) less this process's own, per
+    second. Measured at most once per ``valid`` seconds (cached); 0 where
+    /proc/stat is not available (then the 1-minute load average, less this
+    process, if the platform has one)."""
+    global _taken
+    now = time.perf_counter()
+    if now - _taken[0] < valid:
+        return _taken[1]
+    try:
+        tick = os.sysconf("SC_CLK_TCK")
+        busy0, own0, t0 = _cpu_busy(), time.process_time(), time.perf_counter()
+        time.sleep(window)
+        busy1, own1, t1 = _cpu_busy(), time.process_time(), time.perf_counter()
+        taken = max(0.0, ((busy1 - busy0) / tick - (own1 - own0)) / (t1 - t0))
+    except (OSError, ValueError, IndexError):
+        try:
+            taken = max(0.0, os.getloadavg()[0] - 1.0)
+        except (AttributeError, OSError):
+            taken = 0.0
+    _taken = (time.perf_counter(), taken)
+    return taken
+
+
 #: A losing probe step is followed by at least this many times its own
 #: duration before the next probe: probing costs at most ~1/PROBE_BUDGET.
 PROBE_BUDGET = 20.0
@@ -207,6 +250,7 @@ class AdaptiveThreads:
         self._interval = probe
         self._next_probe = 0.0
         self._probing = False
+        self._order = None  # which count is timed first: decided at the first step
 
     @property
     def setting(self):
@@ -221,9 +265,20 @@ class AdaptiveThreads:
         self._probing = False
         if self.fixed is not None or self.most == 1:
             return self.fixed or 1
-        for n in (self.most, 1):
-            if n not in self.time:
-                return n
+        if self._order is None:
+            # a machine busy at the start: one thread first, all threads only
+            # when the first probe is due (a short run never pays for them)
+            self._order = (self.most, 1)
+            if cores_taken_by_others() > len(_cores()) - self.most + 0.5:
+                self._order = (1, self.most)
+                self._next_probe = time.perf_counter() + self._interval
+        first, second = self._order
+        if first not in self.time:
+            return first
+        if second not in self.time:
+            if first == 1 and time.perf_counter() < self._next_probe:
+                return first
+            return second
         best = self._best()
         now = time.perf_counter()
         if now >= self._next_probe:

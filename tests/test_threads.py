@@ -8,6 +8,7 @@ from ase import units
 from ase_spin import CollectivePRK, SpinLatticeCalculator, SuzukiTrotter, get_spins
 from ase_spin.scenes import fcc_cobalt, fcc_cobalt_terms, field_anisotropy_terms
 from ase_spin.terms import DMI
+from ase_spin import threads
 from ase_spin.threads import AdaptiveThreads, chunks
 
 needs_threads = pytest.mark.skipif(chunks() < 2, reason="numba has one thread here")
@@ -32,10 +33,11 @@ def test_trajectory_is_bitwise_the_same_with_one_thread_or_all(cls):
         assert np.array_equal(a, b)
 
 
-def test_adaptive_choice_follows_the_faster_setting():
-    """With made-up step times: both settings are timed (first step at each
-    dropped), the faster is kept, the other re-probed, and a slowdown of the
-    current choice switches at once."""
+def test_adaptive_choice_follows_the_faster_setting(monkeypatch):
+    """With made-up step times on an idle machine: both settings are timed
+    (first step at each dropped), the faster is kept, the other re-probed, and
+    a slowdown of the current choice switches at once."""
+    monkeypatch.setattr(threads, "cores_taken_by_others", lambda: 0.0)
     control = AdaptiveThreads("auto", probe=1e9)
     control.most = 2
     times = {2: 5.0, 1: 1.0}
@@ -51,6 +53,32 @@ def test_adaptive_choice_follows_the_faster_setting():
     times[1] = 10.0                          # a core got busy: one slow step switches
     control._record(control._choose(), times[1])
     assert control._choose() == 2
+
+
+def test_busy_machine_starts_with_one_thread(monkeypatch):
+    """Other processes holding the cores at the start: one thread is timed
+    first, all threads only once the first probe is due (never within a
+    run shorter than the probe interval)."""
+    monkeypatch.setattr(threads, "cores_taken_by_others", lambda: 2.0)
+    clock = [0.0]
+    monkeypatch.setattr(threads.time, "perf_counter", lambda: clock[0])
+    control = AdaptiveThreads("auto", probe=1.0)
+    control.most = 2
+    chosen = []
+    for _ in range(6):  # 0.1 s per step: within the first probe interval
+        n = control._choose()
+        chosen.append(n)
+        control._record(n, 0.1)
+        clock[0] += 0.1
+    assert chosen == [1] * 6
+    clock[0] = 1.5
+    assert control._choose() == 2  # the probe is due
+
+
+def test_cores_taken_by_others_is_a_number_of_cores():
+    threads._taken = (-1e9, 0.0)  # no cached value
+    taken = threads.cores_taken_by_others()
+    assert 0.0 <= taken <= (threads.os.cpu_count() or 1) + 1.0
 
 
 def test_threads_setting_is_checked(monkeypatch):
