@@ -72,6 +72,7 @@ class SpinLatticeCalculator(Calculator):
         self.evaluator = None
         self._numbers = None
         self._fingerprint = None
+        self._spins = None
 
     def check_state(self, atoms, tol=1e-15):
         """ASE's comparison of the atoms, plus the term parameters: results
@@ -121,7 +122,8 @@ class SpinLatticeCalculator(Calculator):
         """The :class:`Evaluator` for ``atoms``, rebuilt only when species,
         cell, periodicity or moment magnitudes changed."""
         moments = get_moments(atoms)
-        _, mu = split_moments(moments)
+        # the directions are kept for calculate(): one split per evaluation
+        self._spins, mu = split_moments(moments)
         ev = self.evaluator
         if ev is None or ev.stale() or not np.array_equal(self._numbers, atoms.numbers):
             ev = self.evaluator = self.hamiltonian.bind(
@@ -146,7 +148,7 @@ class SpinLatticeCalculator(Calculator):
             raise PropertyNotImplementedError(
                 "stress needs a cell with three non-zero, independent vectors")
         ev, moments = self.bound_evaluator(atoms)
-        spins, _ = split_moments(moments)
+        spins = self._spins
         # one pass over the pairs gives energy, forces and magnetic forces
         # together for little more than any one of them
         together = bool({"energy", "free_energy", "forces", "magnetic_forces"}

@@ -185,33 +185,46 @@ def _cores():
 
 
 def _cpu_busy():
-    """(busy, total) CPU time of the whole machine from /proc/stat (clock ticks)."""
+    """Busy CPU time of the whole machine so far, from /proc/stat (clock ticks)."""
     with open("/proc/stat") as f:
         fields = [int(x) for x in f.readline().split()[1:]]
     idle = fields[3] + (fields[4] if len(fields) > 4 else 0)  # idle + iowait
     return sum(fields) - idle
 
 
+def cpu_snapshot():
+    """(machine busy CPU seconds, this process's CPU seconds, wall seconds),
+    or None where /proc/stat is not available."""
+    try:
+        return (_cpu_busy() / os.sysconf("SC_CLK_TCK"), time.process_time(),
+                time.perf_counter())
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def taken_between(a, b):
+    """Cores kept busy by other processes between two :func:`cpu_snapshot`:
+    the machine's busy time less this process's own, per wall second."""
+    return max(0.0, ((b[0] - a[0]) - (b[1] - a[1])) / (b[2] - a[2]))
+
+
 _taken = (-1e9, 0.0)  # (when measured, cores taken by other processes)
 
 
 def cores_taken_by_others(window=0.05, valid=10.0):
-    """How many cores other processes keep busy now: the machine's busy CPU
-    time over ``window`` seconds (/proc/stat) less this process's own, per
-    second. Measured at most once per ``valid`` seconds (cached); 0 where
-    /proc/stat is not available (then the 1-minute load average, less this
-    process, if the platform has one)."""
+    """How many cores other processes keep busy now (:func:`taken_between`
+    over ``window`` seconds), measured at most once per ``valid`` seconds
+    (cached). Without /proc/stat: the 1-minute load average less one (this
+    process), or 0."""
     global _taken
     now = time.perf_counter()
     if now - _taken[0] < valid:
         return _taken[1]
-    try:
-        tick = os.sysconf("SC_CLK_TCK")
-        busy0, own0, t0 = _cpu_busy(), time.process_time(), time.perf_counter()
+    start = cpu_snapshot()
+    if start is not None:
         time.sleep(window)
-        busy1, own1, t1 = _cpu_busy(), time.process_time(), time.perf_counter()
-        taken = max(0.0, ((busy1 - busy0) / tick - (own1 - own0)) / (t1 - t0))
-    except (OSError, ValueError, IndexError):
+        taken = taken_between(start, cpu_snapshot())
+    else:
         try:
             taken = max(0.0, os.getloadavg()[0] - 1.0)
         except (AttributeError, OSError):
@@ -234,9 +247,11 @@ class AdaptiveThreads:
     timed at every step, so a core taken by another process shows at once; the
     other choice is timed again once per ``probe`` seconds of wall time (the
     interval doubles, up to 64 s, while it keeps losing, and is at least
-    :data:`PROBE_BUDGET` times the losing step's own time). A busy machine thus
-    costs at most about what it costs a single-threaded code, and an idle one
-    keeps the threads. A whole number fixes the count. Results are the same
+    :data:`PROBE_BUDGET` times the losing step's own time). A machine busy
+    at the first step starts with one thread; a probe of all threads is put
+    off while other processes hold the cores (:func:`cpu_snapshot`). A busy
+    machine thus costs at most about what it costs a single-threaded code,
+    and an idle one keeps the threads. A whole number fixes the count. Results are the same
     bit for bit whatever is chosen (see the module's docstring).
     """
 
@@ -251,6 +266,7 @@ class AdaptiveThreads:
         self._next_probe = 0.0
         self._probing = False
         self._order = None  # which count is timed first: decided at the first step
+        self._sample = None  # cpu_snapshot() at the last look at the machine
 
     @property
     def setting(self):
@@ -269,22 +285,48 @@ class AdaptiveThreads:
             # a machine busy at the start: one thread first, all threads only
             # when the first probe is due (a short run never pays for them)
             self._order = (self.most, 1)
-            if cores_taken_by_others() > len(_cores()) - self.most + 0.5:
+            if cores_taken_by_others() > self._free_threshold():
                 self._order = (1, self.most)
                 self._next_probe = time.perf_counter() + self._interval
+            self._sample = cpu_snapshot()
         first, second = self._order
         if first not in self.time:
             return first
         if second not in self.time:
-            if first == 1 and time.perf_counter() < self._next_probe:
+            if first == 1 and not self._probe_due():
                 return first
             return second
         best = self._best()
-        now = time.perf_counter()
-        if now >= self._next_probe:
+        if best == 1:
+            if self._probe_due():
+                self._probing = True
+                return self.most
+            return 1
+        if time.perf_counter() >= self._next_probe:
             self._probing = True
-            return 1 if best == self.most else self.most
+            return 1
         return best
+
+    def _free_threshold(self):
+        """Other processes' load (cores) above which ``most`` threads cannot
+        all have a core: all cores but ``most`` − ½."""
+        return len(_cores()) - self.most + 0.5
+
+    def _probe_due(self):
+        """Whether to time all threads again: the probe interval has passed
+        and, since the last look, other processes have left the cores free
+        (else the probe is put off by another interval without running: a
+        threaded step on a busy machine costs 10–200 one-thread steps)."""
+        now = time.perf_counter()
+        if now < self._next_probe:
+            return False
+        snapshot = cpu_snapshot()
+        last, self._sample = self._sample, snapshot
+        if (last is not None and snapshot is not None and snapshot[2] - last[2] > 0.2
+                and taken_between(last, snapshot) > self._free_threshold()):
+            self._next_probe = now + self._interval
+            return False
+        return True
 
     def _record(self, n, elapsed):
         self.seen[n] = self.seen.get(n, 0) + 1

@@ -75,6 +75,31 @@ def test_busy_machine_starts_with_one_thread(monkeypatch):
     assert control._choose() == 2  # the probe is due
 
 
+def test_probe_waits_while_other_processes_hold_the_cores(monkeypatch):
+    """A probe of all threads that falls due while other processes keep the
+    cores busy (machine busy time from made-up /proc/stat snapshots) is put
+    off without running; once the machine is quiet, the next due probe runs."""
+    monkeypatch.setattr(threads, "cores_taken_by_others", lambda: 2.0)
+    clock, machine = [0.0], [0.0]
+    monkeypatch.setattr(threads.time, "perf_counter", lambda: clock[0])
+    monkeypatch.setattr(threads, "cpu_snapshot", lambda: (machine[0], 0.0, clock[0]))
+    control = AdaptiveThreads("auto", probe=1.0)
+    control.most = 2
+    busy = []
+    for _ in range(50):  # 5 s with two cores held by others: never two threads
+        busy.append(control._choose())
+        control._record(busy[-1], 0.1)
+        clock[0] += 0.1
+        machine[0] += 0.2
+    assert busy == [1] * 50
+    quiet = []
+    for _ in range(30):  # 3 s of an idle machine: the probe runs
+        quiet.append(control._choose())
+        control._record(quiet[-1], 0.1 if quiet[-1] == 1 else 0.05)
+        clock[0] += 0.1
+    assert 2 in quiet and quiet[-1] == 2  # and two threads, now faster, are kept
+
+
 def test_cores_taken_by_others_is_a_number_of_cores():
     threads._taken = (-1e9, 0.0)  # no cached value
     taken = threads.cores_taken_by_others()
