@@ -10,7 +10,7 @@ Columns (medians of --repeat timings, neighbour list already built):
              Atoms copy and state check)
   B only     magnetic forces alone from cached pair geometry
   geometry   J(r_ij), J'(r_ij) d/r for the exchange pairs
-  nl build   one vesin neighbour-list build at rc + skin
+  nl build   one neighbour-list build at rc + skin (the compiled cell list)
 ase's own LennardJones (LJ only, energy + forces) for small N, for scale.
 """
 
