@@ -18,8 +18,8 @@ import types
 
 import numba as nb
 
-__all__ = ["SERIAL_BELOW", "SERIAL_ALL_BELOW", "threads_for", "count", "threaded",
-           "serial_twin", "prange_only", "AdaptiveThreads"]
+__all__ = ["SERIAL_BELOW", "SERIAL_ALL_BELOW", "threads_for", "count", "small", "tiny",
+           "threaded", "serial_twin", "prange_only", "AdaptiveThreads"]
 
 #: Systems with fewer atoms than this run the serial twins.
 SERIAL_BELOW = 1500
@@ -72,6 +72,12 @@ def tiny():
     """Inside :func:`threads_for` of a system small enough for every kernel
     to run serially (fewer than :data:`SERIAL_ALL_BELOW` atoms)."""
     return _mode.serial and _mode.tiny
+
+
+def small():
+    """Inside :func:`threads_for` of a system small enough for the light
+    kernels to run serially (fewer than :data:`SERIAL_BELOW` atoms)."""
+    return _mode.serial
 
 
 def count():
@@ -350,7 +356,12 @@ class AdaptiveThreads:
     def step(self, natoms):
         """``with adaptive.step(natoms):`` runs one step inside: sets the thread
         count (and the serial twins for a small system), times the step,
-        restores numba's setting."""
+        restores numba's setting. Below :data:`SERIAL_ALL_BELOW` atoms every
+        kernel runs serially whatever the count: only the serial twins are
+        chosen (setting numba's thread count would cost more than the step's
+        kernels)."""
+        if natoms < SERIAL_ALL_BELOW and natoms < SERIAL_BELOW:
+            return threads_for(natoms)
         return _Step(self, natoms)
 
 

@@ -147,3 +147,66 @@ def test_anderson_is_bitwise_the_same_with_one_thread_or_all(extra):
         runs.append((atoms.positions.copy(), ase_spin.get_spins(atoms), dyn.total_iterations))
     for a, b in zip(*runs):
         assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("order", range(12))
+def test_predictor_extrapolates_polynomials_of_its_order_exactly(order):
+    """Order k of the predictor continues any polynomial of degree k from its
+    last k + 1 values (then renormalised), whatever the older history holds."""
+    from collections import deque
+
+    from ase_spin.md import kernels
+
+    rng = np.random.default_rng(order)
+    a = rng.normal(size=(order + 1, 20, 3))
+    a[0] += 3.0  # rows well away from zero length
+
+    def value(t):  # t = 0 … 1
+        return sum(a[j] * t**j for j in range(order + 1))
+
+    depth = kernels.PREDICTOR_DEPTH
+    history = deque(maxlen=depth)
+    for m in range(depth):  # older than the last order + 1 values: anything
+        history.append(value(m / depth) if m >= depth - order - 1 else rng.normal(size=(20, 3)))
+    expected = value(1.0)
+    expected /= np.linalg.norm(expected, axis=1)[:, None]
+    assert np.allclose(kernels.extrapolate(history, order), expected, rtol=0, atol=1e-9)
+
+
+def test_predictor_order_choice_is_the_order_with_the_smallest_error():
+    """best_extrapolation_order (one backward-difference table) picks the order
+    whose coefficient-form extrapolation is closest on the sampled rows."""
+    from collections import deque
+
+    from ase_spin.md import kernels
+
+    rng = np.random.default_rng(5)
+    t = np.arange(13)[:, None, None]
+    for omega in (0.05, 0.3, 1.0):
+        phase = rng.uniform(0, 6, size=(1, 40, 3))
+        path = np.cos(omega * t + phase) + 1e-9 * rng.normal(size=(13, 40, 3))
+        for n in (1, 5, 12):
+            history = deque(path[12 - n:12], maxlen=12)
+            rows = np.arange(0, 40, 3)
+            target = path[12]
+            newest_first = [history[-1 - m] if m < n else history[-1] for m in range(12)]
+            errors = [max(abs(sum(c * h[r] for c, h in zip(kernels._COEFFICIENTS[k],
+                                                           newest_first)) - target[r]).max()
+                          for r in rows) for k in range(n)]
+            assert kernels.best_extrapolation_order(history, target, rows) == int(
+                np.argmin(errors))
+
+
+def test_predictor_leaves_one_geometry_and_few_sweeps_per_step():
+    """fcc Co, 0.1 fs: the predicted midpoint spins are close enough (≈1e-13)
+    that q̃ computed from them settles at once: one pair geometry per step
+    (two with the order-3 predictor) and at most three sweeps (eight)."""
+    atoms = fcc_cobalt(3)
+    dyn = CollectivePRK(atoms, 0.1 * units.fs)
+    dyn.run(20)  # the history fills
+    sweeps, geometries = [], []
+    dyn.attach(lambda: (sweeps.append(dyn.iterations),
+                        geometries.append(dyn.geometry_evaluations)), interval=1)
+    dyn.run(10)
+    assert max(geometries[1:]) == 1
+    assert np.mean(sweeps[1:]) <= 3.0

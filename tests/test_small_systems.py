@@ -85,9 +85,10 @@ def _trajectory(cls, atoms, dt, steps, **kwargs):
                                            (SuzukiTrotter, _GeneralSplitting)])
 def test_fast_step_equals_general_step_bitwise(scene, fast, general, monkeypatch):
     """The fused pieces change no bit of a trajectory: the paper chain and fcc
-    Co N = 32 (tiny: CollectivePRK takes one compiled step), fcc Co N = 108 with
-    exchange only and with a field and anisotropy (several operators), and
-    with fixed atoms (the constrained path, used automatically)."""
+    Co N = 32 (tiny: CollectivePRK takes one compiled step of serial pieces),
+    fcc Co N = 108 with exchange only (one compiled step, the heavy pieces
+    threaded) and with a field and anisotropy (several operators: the general
+    path), and with fixed atoms (the constrained path, used automatically)."""
     used = _spy_fused(monkeypatch)
     runs = []
     for cls in (fast, general):
@@ -104,8 +105,8 @@ def test_fast_step_equals_general_step_bitwise(scene, fast, general, monkeypatch
         runs.append(_trajectory(cls, atoms, 0.2 * units.fs, 15))
     for a, b in zip(*runs):
         assert np.array_equal(a, b)
-    tiny = scene in ("chain", "fcc32")
-    assert (used["done"] > 0) == (tiny and fast is CollectivePRK)
+    one_operator = scene in ("chain", "fcc32", "fcc")
+    assert (used["done"] > 0) == (one_operator and fast is CollectivePRK)
 
 
 def _spy_fused(monkeypatch):
@@ -289,20 +290,25 @@ def test_adaptive_step_restores_numba_threads_after_an_error():
     control = threads.AdaptiveThreads(1)
     before = nb.get_num_threads()
     with pytest.raises(KeyError):
-        with control.step(10):
+        with control.step(100):
             assert nb.get_num_threads() == 1 and threads.count() == 1
             raise KeyError
     assert nb.get_num_threads() == before and threads.count() == threads.chunks()
     assert not control.seen  # a failed step is not timed
-    with control.step(10):
+    with control.step(100):
         pass
+    assert control.seen == {1: 1}
+    with control.step(10):  # a tiny system: every kernel serial, nothing set or timed
+        assert nb.get_num_threads() == before and threads.count() == 1 and threads.tiny()
     assert control.seen == {1: 1}
 
 
 
-def test_langevin_takes_the_fused_step_with_its_own_predictor(monkeypatch):
+@pytest.mark.parametrize("n", [2, 3])
+def test_langevin_takes_the_fused_step_with_its_own_predictor(n, monkeypatch):
     """Langevin (a CollectivePRK with its own predictor and baths around the
-    step) on a tiny system: the fused step, bitwise the general path's run."""
+    step) on a tiny (32 atoms) and a small system (108): the fused step,
+    bitwise the general path's run."""
     from ase_spin import Langevin
 
     used = _spy_fused(monkeypatch)
@@ -310,11 +316,35 @@ def test_langevin_takes_the_fused_step_with_its_own_predictor(monkeypatch):
     for general in (False, True):
         if general:
             monkeypatch.setattr(fused, "collective_step", lambda *args: None)
-        atoms = fcc_cobalt(2)
+        atoms = fcc_cobalt(n)
         dyn = Langevin(atoms, 0.5 * units.fs, 300.0, spin_damping=0.1,
                        friction=0.01 / units.fs, rng=3)
         dyn.run(10)
         runs.append((atoms.positions.copy(), atoms.get_momenta(), get_spins(atoms)))
     assert used["done"] > 0
+    for a, b in zip(*runs):
+        assert np.array_equal(a, b)
+
+
+def test_fused_step_above_tiny_threads_its_heavy_pieces_same_bits_any_threads(monkeypatch):
+    """Between SERIAL_ALL_BELOW and SERIAL_BELOW atoms the fused step calls the
+    threaded twins of Lennard-Jones and the exchange geometry, as the general
+    path does there: one thread or all, the same trajectory bit for bit."""
+    from ase_spin.terms import exchange as exchange_module
+
+    used = _spy_fused(monkeypatch)
+    runs = []
+    for n in (1, threads.chunks()):
+        atoms = fcc_cobalt(3)
+        assert threads.SERIAL_ALL_BELOW <= len(atoms) < threads.SERIAL_BELOW
+        dyn = CollectivePRK(atoms, 0.2 * units.fs, threads=n)
+        dyn.run(12)
+        runs.append((atoms.positions.copy(), atoms.get_momenta(), get_spins(atoms)))
+        with threads.threads_for(len(atoms)):
+            lattice, _ = fused._lattice_pieces(dyn.ev)
+            spin = dyn._state.ops[0].compiled()
+        assert lattice is lennard_jones._lj_forces_threaded
+        assert spin[1] is exchange_module._exchange_geometry_threaded
+    assert used["done"] > 5 * used["general"]  # the general path: each run's first step
     for a, b in zip(*runs):
         assert np.array_equal(a, b)

@@ -1,20 +1,24 @@
-"""One compiled CollectivePRK step for tiny systems, composed from the terms'
+"""One compiled CollectivePRK step for small systems, composed from the terms'
 compiled pieces.
 
 A step of the paper's 30-atom chain is a dozen kernel calls that each take a
-microsecond or two of work and several of Python around them. Here the whole
-second-order step (kicks, drifts, geometry, midpoint solves, the checks between
-them) is one numba function, compiled once per combination of pieces from what
-the terms expose (:meth:`~ase_spin.terms.base.Term.compiled_lattice`,
+microsecond or two of work and several of Python around them; at fcc Co with
+500 atoms Python still took a fifth of the step. Below
+:data:`~ase_spin.threads.SERIAL_BELOW` atoms the whole second-order step
+(kicks, drifts, geometry, midpoint solves, the checks between them) is one
+numba function, compiled once per combination of pieces from what the terms
+expose (:meth:`~ase_spin.terms.base.Term.compiled_lattice`,
 :meth:`~ase_spin.terms.base.SpinOperator.compiled`) — the integrator never sees a
 term's internals, and a term without the pieces simply keeps the general path.
 
-The pieces are the serial twins of the same kernels the general path calls,
-with the same arguments in the same order, so the results are the same bit for
-bit. Whatever the general path would stop at (an atom moving too far, a pair
-list to rebuild, a midpoint solve that fails, non-finite forces) makes the
-fused step give up before it has changed any state; the general path then takes
-the step (and raises its error, if any).
+The pieces are the twins of the same kernels the general path calls at that
+size (all serial below :data:`~ase_spin.threads.SERIAL_ALL_BELOW` atoms; above,
+the pair-potential and geometry kernels threaded, called from compiled code),
+with the same arguments and chunks in the same order, so the results are the
+same bit for bit. Whatever the general path would stop at (an atom moving too
+far, a pair list to rebuild, a midpoint solve that fails, non-finite forces)
+makes the fused step give up before it has changed any state; the general path
+then takes the step (and raises its error, if any).
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ _DONE, _GIVE_UP = 0, 1
 
 def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, scale, tol,
           floor, max_iter, theta, lattice, op_q, op_t, reference, half_skin, settled_tol,
-          memory, local, switch):
+          memory, local, switch, predict, coef, hs, n_history, probe):
     """The skeleton of the fused step (compiled with ``lattice_forces``,
     ``spin_forces``, ``spin_geometry`` and ``spin_couplings`` bound to the
     terms' pieces): CollectivePRK._coupled_step for one spin operator on a
@@ -46,7 +50,16 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     geometries); status 1: give up, nothing but scratch buffers was written.
     ``memory``, ``local``: the midpoint solver (kernels.midpoint_solve_half);
     a solve contracting by more than ``switch`` per sweep also gives up, so
-    that CollectivePRK's ``solver="auto"`` makes its switch on the general path."""
+    that CollectivePRK's ``solver="auto"`` makes its switch on the general path.
+    With ``predict``, W is not read but predicted here as CollectivePRK._predict
+    does (coefficients ``coef`` over the history ``hs``, newest first, padded),
+    and the last value returned is the order that would have predicted the
+    solution best (CollectivePRK._remember_midpoint's, from ``n_history``
+    midpoints and the rows ``probe``); else that value is −1."""
+    if predict:
+        W = np.empty_like(s)
+        extrapolate(coef, hs[0], hs[1], hs[2], hs[3], hs[4], hs[5], hs[6], hs[7],  # noqa: F821
+                    hs[8], hs[9], hs[10], hs[11], W)
     qt_used = q
     first = True
     settled = False
@@ -68,7 +81,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
             1, p, 0.5 * h, F, carry_p, P, carry_mid, q, m, h, carry_q, qt, carry_qt, qt_used)
         if first:
             if not moved <= half_skin:
-                return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0)
+                return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1)
             qtol = 4.0 * _EPS * max(1.0, largest)
             first = False
         elif apart <= qtol:
@@ -76,7 +89,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
             break
         # the pair list must stay valid at q̃ (else the general path rebuilds it)
         if not max_displacement(qt, reference)[0] <= half_skin:
-            return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0)
+            return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1)
         spin_geometry(qt, op_t, op_q)  # noqa: F821
         geometries += 1
         row, nbr, c = spin_couplings(op_t)  # noqa: F821
@@ -86,7 +99,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
             1, row, nbr, c, s, W, Wnext, stilde, scale, tol, floor, max_iter,
             min(1.0, 2.0 * theta), carry_s, carry, memory, local)
         if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch):
-            return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0)
+            return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1)
         if measured < 1.0:
             theta = measured
         if which == 1:
@@ -97,16 +110,20 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
             settled = True
             break
     if not settled:
-        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0)
+        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1)
     FLt = np.zeros_like(q)
     lattice_forces(qt, lattice, FLt)  # noqa: F821
     if not all_finite(FLt):
-        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0)
+        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1)
     F = FLt.copy()
     spin_forces(W, op_t, F)  # noqa: F821
     kick(P, 0.5 * h, F, carry_mid, P, carry_p)  # noqa: F821
+    order = -1
+    if predict and n_history > 0:
+        order = best_order(n_history, hs[0], hs[1], hs[2], hs[3], hs[4], hs[5],  # noqa: F821
+                           hs[6], hs[7], hs[8], hs[9], hs[10], hs[11], W, probe)
     return (_DONE, qt, P, stilde, carry_qt, carry, FLt, W, Wnext, theta, iterations,
-            geometries)
+            geometries, order)
 
 
 def _both(positions, data, forces):
@@ -134,7 +151,9 @@ def step_function(lattice, spin):
             _step, {"lattice_forces": lattice, "spin_forces": forces,
                     "spin_geometry": geometry, "spin_couplings": couplings,
                     "kick_drift": kernels.kick_drift.serial, "kick": kernels.kick.serial,
-                    "solve_half": kernels.midpoint_solve_half.serial},
+                    "solve_half": kernels.midpoint_solve_half.serial,
+                    "extrapolate": kernels._extrapolate.serial,
+                    "best_order": kernels._best_order},
             f"{lattice.__name__}_{forces.__name__}")
     return fn
 
@@ -172,7 +191,20 @@ def _lattice_pieces(ev):
 #: _remember_midpoint are called as they are).
 _REPLACED = ("_spin_forces", "_md_forces", "_kick_drift", "_drift", "_check_moved",
              "_lattice_at", "_solve", "_adjust_momenta")
+#: The predictor, done inside the fused step unless a subclass overrides one of these.
+_PREDICTOR = ("_predict", "_remember_midpoint")
 _plain_classes = {}
+_own_predictor = {}
+
+
+def _predicts(cls):
+    own = _own_predictor.get(cls)
+    if own is None:
+        from .collective import CollectivePRK
+
+        own = _own_predictor[cls] = all(getattr(cls, name) is getattr(CollectivePRK, name)
+                                        for name in _PREDICTOR)
+    return own
 
 
 def _plain(cls):
@@ -185,59 +217,98 @@ def _plain(cls):
     return plain
 
 
+_UNSEEN = object()
+_collective = None
+
+
+def _import_collective():
+    global _collective
+    from . import collective  # (it imports this module)
+
+    _collective = collective
+    return collective
+
+
 def collective_step(dyn, h, stage):
     """CollectivePRK's second-order step of size h as one compiled call, when
-    the system is tiny and every term offers its pieces; returns (sweeps,
-    geometries), or None to take the general path (nothing changed)."""
+    the system is small (light kernels serial: threads.small()) and every term
+    offers its pieces; returns (sweeps, geometries), or None to take the general
+    path (nothing changed)."""
     st = dyn._state
     ev = dyn.ev
-    if (not threads.tiny() or st.ops_next is None or len(st.ops) != 1
+    if (not threads.small() or st.ops_next is None or len(st.ops) != 1
             or ev.neighbors is None or dyn.atoms.constraints or not dyn.half_lists):
         return None
     if not _plain(type(dyn)):
         return None
     op_q, op_t = st.ops[0], st.ops_next[0]
     token = ev.state_token
-    cached = getattr(st, "fused", None)  # (state token, lattice pieces or None)
+    # per state and pair list: the lattice pieces, each operator's pieces (its
+    # arrays are refilled in place while the token holds) and the step
+    cached = getattr(st, "fused", None)
     if cached is None or cached[0] != token:
-        cached = st.fused = (token, _lattice_pieces(ev))
+        cached = st.fused = (token, _lattice_pieces(ev), {})
     plan = cached[1]
     if plan is None:
         return None
-    piece_q = op_q.compiled()
-    piece_t = op_t.compiled()
+    pieces = cached[2]
+    piece_q = pieces.get(op_q, _UNSEEN)
+    if piece_q is _UNSEEN:
+        piece_q = pieces[op_q] = op_q.compiled()
+    piece_t = pieces.get(op_t, _UNSEEN)
+    if piece_t is _UNSEEN:
+        piece_t = pieces[op_t] = op_t.compiled()
     if (piece_q is None or piece_t is None or piece_q[:3] != piece_t[:3]
             or getattr(op_q, "pairs", None) is not getattr(op_t, "pairs", None)):
         return None
     lattice_fn, lattice_data = plan
-    step = step_function(lattice_fn, piece_t[:3])
+    step = pieces.get("step")
+    if step is None:
+        step = pieces["step"] = step_function(lattice_fn, piece_t[:3])
     scale = st.scales.get(h)
     if scale is None:  # as CollectivePRK._solve
         scale = st.scales[h] = (h * dyn.sigma / dyn.hbar) * st.rate
-    from .collective import _AUTO_JACOBI_SWEEPS, _AUTO_SWITCH, SOLVERS  # (imports us)
+    collective = _collective or _import_collective()
     solver, max_iter, switch = dyn._solver, dyn.max_iter, np.inf
     if solver == "auto":  # as CollectivePRK._solve: Jacobi until it contracts slowly
         solver = st.modes.get((stage, h), "jacobi")
         if solver == "jacobi":
-            max_iter, switch = min(max_iter, _AUTO_JACOBI_SWEEPS), _AUTO_SWITCH
-    memory, local = SOLVERS[solver]
-    W = dyn._predict(stage)
+            max_iter = min(max_iter, collective._AUTO_JACOBI_SWEEPS)
+            switch = collective._AUTO_SWITCH
+    memory, local = collective.SOLVERS[solver]
     reference = ev.neighbors.reference
     if reference is None or reference.shape != st.q.shape:
         return None
+    history = st.history[stage]
+    predict = bool(history) and _predicts(type(dyn))
+    if predict:  # CollectivePRK._predict, inside the step
+        hs = kernels._last(history)
+        n_history = len(history)
+        coef = kernels._COEFFICIENTS[min(st.predictor_order[stage], n_history - 1)]
+        W = hs[0]  # not read
+    else:
+        W = dyn._predict(stage)
+        hs = (W,) * kernels.PREDICTOR_DEPTH
+        n_history = 0
+        coef = kernels._COEFFICIENTS[0]
     (status, qt, P, s_new, carry_q, carry_s, FL, W, Wnext, theta, iterations,
-     geometries) = step(st.q, st.p, st.s, st.FL, dyn.masses[:, 0], h, st.carry_q, st.carry_p,
-                        st.carry_s, st.carry_mid, W, st.Wnext, scale, dyn.tol,
-                        64.0 * dyn.tol, max_iter, st.theta[stage], lattice_data,
-                        piece_q[3], piece_t[3], reference, 0.5 * ev.skin, dyn._settled_tol(),
-                        memory, local, switch)
+     geometries, order) = step(st.q, st.p, st.s, st.FL, dyn.masses[:, 0], h, st.carry_q,
+                               st.carry_p, st.carry_s, st.carry_mid, W, st.Wnext, scale,
+                               dyn.tol, 64.0 * dyn.tol, max_iter, st.theta[stage],
+                               lattice_data, piece_q[3], piece_t[3], reference, 0.5 * ev.skin,
+                               dyn._settled_tol(), memory, local, switch, predict, coef, hs,
+                               n_history, st.probe)
     if status != _DONE:
         return None
     st.theta[stage] = theta
     st.Wnext = Wnext
     st.FL, st.EL, st.EL_terms, st.VL = FL, None, None, None
     st.carry_q, st.carry_s = carry_q, carry_s
-    dyn._remember_midpoint(stage, W)
+    if predict:  # CollectivePRK._remember_midpoint, its order found inside the step
+        st.predictor_order[stage] = order
+        history.append(W)
+    else:
+        dyn._remember_midpoint(stage, W)
     st.q, st.p, st.s = qt, P, s_new
     st.ops, st.ops_next = st.ops_next, st.ops
     return iterations, geometries

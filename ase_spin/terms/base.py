@@ -233,9 +233,11 @@ class Term(Parameterised):
 
     def compiled_lattice(self, pairs, types, table):
         """Optional, for lattice terms: this term's forces as a compiled piece
-        of the integrators' fused step for tiny systems (:mod:`ase_spin.md.fused`):
+        of the integrators' fused step for small systems (:mod:`ase_spin.md.fused`):
         ``(f, data)`` with ``f(positions, data, forces)`` a numba function adding
-        bitwise the forces :meth:`compute` adds with ``Want(forces=True)``, serially.
+        bitwise the forces :meth:`compute` adds with ``Want(forces=True)``, with
+        the twin :meth:`compute` calls at this size (serial where
+        :func:`ase_spin.threads.tiny`, else as the kernel's ``always`` says).
         None (the default): the integrators take their general path."""
         return None
 
@@ -275,9 +277,9 @@ class SpinOperator:
 
     def compiled(self):
         """Optional: this operator as compiled pieces of the integrators' fused
-        step for tiny systems (:mod:`ase_spin.md.fused`), ``(forces, geometry,
-        couplings, data)``, numba functions that do serially and bitwise what
-        the methods do:
+        step for small systems (:mod:`ase_spin.md.fused`), ``(forces, geometry,
+        couplings, data)``, numba functions that do bitwise what the methods do,
+        with the twins (serial or threaded) the methods call at this size:
 
         - ``forces(W, data, F)``: add the lattice forces at spins W (:meth:`add`
           with ``Want(forces=True)``);

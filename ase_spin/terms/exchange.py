@@ -169,7 +169,9 @@ class ExchangeOperator(SpinOperator):
             return None
         if self.Jbar is None or len(self.Jbar) != len(self.J):
             self.Jbar = np.empty(len(self.J))
-        return (_exchange_forces, _exchange_geometry, _exchange_couplings,
+        # the geometry kernel is threaded above the tiny systems (threads.tiny)
+        geometry = _exchange_geometry if threads.tiny() else _exchange_geometry_threaded
+        return (_exchange_forces, geometry, _exchange_couplings,
                 (threads.count(), p.row, p.j, p.image, p.images, self.J, self.G, self.Jbar,
                  self.offset, self.params))
 
@@ -776,6 +778,20 @@ def _exchange_geometry(positions, data, other):
     rc2, form, p0, p1, p2 = params
     _geometry_single_serial(positions, row, nbr, image, images, rc2, form, p0, p1, p2, J, G,
                             np.zeros((0, 3)), False, other[5], Jbar)
+
+
+_geometry_single_parallel = _geometry_single.parallel
+
+
+@nb.njit(cache=True)
+def _exchange_geometry_threaded(positions, data, other):
+    """:func:`_exchange_geometry` with the threaded twin of the geometry kernel
+    (one result per pair: the same bits whatever the threads), as
+    :meth:`Exchange.prepare` runs it above the tiny systems."""
+    nthreads, row, nbr, image, images, J, G, Jbar, offset, params = data
+    rc2, form, p0, p1, p2 = params
+    _geometry_single_parallel(positions, row, nbr, image, images, rc2, form, p0, p1, p2, J,
+                              G, np.zeros((0, 3)), False, other[5], Jbar)
 
 
 @nb.njit(cache=True)

@@ -157,8 +157,10 @@ class LennardJones(Term):
 
     def compiled_lattice(self, pairs, types, table):
         """The forces of :meth:`compute` as a compiled piece (see
-        :meth:`Term.compiled_lattice`)."""
-        return _lj_forces, (threads.all_threads(), pairs.row, pairs.j, pairs.image,
+        :meth:`Term.compiled_lattice`): the kernel's serial twin in a tiny
+        system, else its threaded one, as :meth:`compute` runs it."""
+        forces = _lj_forces if threads.tiny() else _lj_forces_threaded
+        return forces, (threads.all_threads(), pairs.row, pairs.j, pairs.image,
                             pairs.images, types, table)
 
 
@@ -272,3 +274,15 @@ def _lj_forces(positions, data, forces):
     nthreads, row, nbr, image, images, types, table = data
     _lj_serial(nthreads, positions, row, nbr, image, images, types, table, forces,
                np.zeros(0), True, False, False, False)
+
+
+_lj_parallel = _lj_kernel.parallel
+
+
+@nb.njit(cache=True)
+def _lj_forces_threaded(positions, data, forces):
+    """:func:`_lj_forces` with the threaded twin (the same chunks, so the same
+    bits): the piece of the fused step above the tiny systems."""
+    nthreads, row, nbr, image, images, types, table = data
+    _lj_parallel(nthreads, positions, row, nbr, image, images, types, table, forces,
+                 np.zeros(0), True, False, False, False)
