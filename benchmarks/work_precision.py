@@ -45,7 +45,7 @@ EXCHANGE = (0.0446928, 0.003496, 1.4885, 4.0, False)
 # (label, kind, options, steps in fs or in units of the chain's time)
 FCC_METHODS = [
     ("CollectivePRK order 2", "prk", {"order": 2}, [0.5, 0.25, 0.1, 0.05, 0.025]),
-    ("CollectivePRK order 4", "prk", {"order": 4}, [2.0, 1.5, 1.0, 0.5, 0.25, 0.125]),
+    ("CollectivePRK order 4", "prk", {"order": 4}, [2.0, 1.5, 1.25, 1.0, 0.5, 0.25, 0.125]),
     ("CollectivePRK order 6", "prk", {"order": 6}, [2.0, 1.0, 0.5, 0.25, 0.125]),
     ("SuzukiTrotter (Cayley)", "st", {"rotation": "cayley"}, [0.5, 0.2, 0.1, 0.05, 0.025]),
     ("LAMMPS fix nve/spin", "lammps", {}, [0.5, 0.2, 0.1, 0.05, 0.025, 0.01, 0.0025]),

@@ -40,26 +40,29 @@ _DONE, _GIVE_UP = 0, 1
 
 
 def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, scale, tol,
-          floor, max_iter, theta, lattice, op_q, op_t, reference, half_skin, settled_tol,
-          memory, local, switch, predict, coef, hs, n_history, probe):
+          first_tol, floor, max_iter, theta, lattice, op_q, op_t, reference, half_skin,
+          settled_tol, memory, local, switch, predict, coef, hs, n_history, probe):
     """The skeleton of the fused step (compiled with ``lattice_forces``,
     ``spin_forces``, ``spin_geometry`` and ``spin_couplings`` bound to the
     terms' pieces): CollectivePRK._coupled_step for one spin operator on a
     half pair list, no constraints, no energy wanted. Returns (status, q̃, p̃,
     s̃, carry of q̃, carry of s̃, F_L(q̃), W, the other W buffer, θ, sweeps,
-    geometries); status 1: give up, nothing but scratch buffers was written.
+    geometries, how far the second solve moved W or −1); status 1: give up,
+    nothing but scratch buffers was written. The first solve stops at
+    ``first_tol``, the others at ``tol`` (collective.first_tolerance).
     ``memory``, ``local``: the midpoint solver (kernels.midpoint_solve_half);
     a solve contracting by more than ``switch`` per sweep also gives up, so
     that CollectivePRK's ``solver="auto"`` makes its switch on the general path.
     With ``predict``, W is not read but predicted here as CollectivePRK._predict
-    does (coefficients ``coef`` over the history ``hs``, newest first, padded),
-    and the last value returned is the order that would have predicted the
-    solution best (CollectivePRK._remember_midpoint's, from ``n_history``
-    midpoints and the rows ``probe``); else that value is −1."""
+    does (normalise(s + Σ c_m D_m), coefficients ``coef`` over the increments
+    ``hs``, newest first, padded), and the returned order is the one that would
+    have predicted the increment W − s best (CollectivePRK._remember_midpoint's,
+    from ``n_history`` increments and the rows ``probe``), else −1; ``settle``:
+    how far the second solve moved W, or −1."""
     if predict:
         W = np.empty_like(s)
         extrapolate(coef, hs[0], hs[1], hs[2], hs[3], hs[4], hs[5], hs[6], hs[7],  # noqa: F821
-                    hs[8], hs[9], hs[10], hs[11], W)
+                    hs[8], hs[9], hs[10], hs[11], s, W)
     qt_used = q
     first = True
     settled = False
@@ -71,6 +74,9 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     carry_qt = carry_q
     stilde = s
     carry = carry_s
+    solves = 0
+    loose = False
+    settle = -1.0
     for _ in range(MAX_OUTER):
         F = FL.copy()
         spin_forces(W, op_q, F)  # noqa: F821 - bound per combination of terms
@@ -81,49 +87,74 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
             1, p, 0.5 * h, F, carry_p, P, carry_mid, q, m, h, carry_q, qt, carry_qt, qt_used)
         if first:
             if not moved <= half_skin:
-                return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1)
+                return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle)
             qtol = 4.0 * _EPS * max(1.0, largest)
             first = False
         elif apart <= qtol:
-            settled = True
-            break
+            if not loose:
+                settled = True
+                break
+            # as CollectivePRK: finish the loose first solve at these couplings
+            loose = False
+            row, nbr, c = spin_couplings(op_t)  # noqa: F821
+            stilde = np.zeros_like(s)
+            carry = np.zeros_like(s)
+            its, delta, status, which, measured, moved_w = solve_half(  # noqa: F821
+                1, row, nbr, c, s, W, Wnext, stilde, scale, tol, floor, max_iter,
+                min(1.0, 2.0 * theta), carry_s, carry, memory, local)
+            if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch):
+                return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle)
+            if measured < 1.0:
+                theta = measured
+            if which == 1:
+                W, Wnext = Wnext, W
+            iterations += its
+            if moved_w <= settled_tol:
+                settled = True
+                break
+            continue
         # the pair list must stay valid at q̃ (else the general path rebuilds it)
         if not max_displacement(qt, reference)[0] <= half_skin:
-            return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1)
+            return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle)
         spin_geometry(qt, op_t, op_q)  # noqa: F821
         geometries += 1
         row, nbr, c = spin_couplings(op_t)  # noqa: F821
         stilde = np.zeros_like(s)
         carry = np.zeros_like(s)
+        use_tol = first_tol if solves == 0 else tol
         its, delta, status, which, measured, moved_w = solve_half(  # noqa: F821
-            1, row, nbr, c, s, W, Wnext, stilde, scale, tol, floor, max_iter,
+            1, row, nbr, c, s, W, Wnext, stilde, scale, use_tol, floor, max_iter,
             min(1.0, 2.0 * theta), carry_s, carry, memory, local)
         if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch):
-            return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1)
+            return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle)
         if measured < 1.0:
             theta = measured
         if which == 1:
             W, Wnext = Wnext, W
         iterations += its
         qt_used = qt
+        loose = use_tol > tol
+        solves += 1
+        if solves == 2:
+            settle = moved_w
         if moved_w <= settled_tol:
             settled = True
             break
     if not settled:
-        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1)
+        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle)
     FLt = np.zeros_like(q)
     lattice_forces(qt, lattice, FLt)  # noqa: F821
     if not all_finite(FLt):
-        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1)
+        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle)
     F = FLt.copy()
     spin_forces(W, op_t, F)  # noqa: F821
     kick(P, 0.5 * h, F, carry_mid, P, carry_p)  # noqa: F821
     order = -1
     if predict and n_history > 0:
         order = best_order(n_history, hs[0], hs[1], hs[2], hs[3], hs[4], hs[5],  # noqa: F821
-                           hs[6], hs[7], hs[8], hs[9], hs[10], hs[11], W, probe)
+                           hs[6], hs[7], hs[8], hs[9], hs[10], hs[11], W - s, probe)
     return (_DONE, qt, P, stilde, carry_qt, carry, FLt, W, Wnext, theta, iterations,
-            geometries, order)
+            geometries, order, settle)
 
 
 def _both(positions, data, forces):
@@ -292,21 +323,25 @@ def collective_step(dyn, h, stage):
         n_history = 0
         coef = kernels._COEFFICIENTS[0]
     (status, qt, P, s_new, carry_q, carry_s, FL, W, Wnext, theta, iterations,
-     geometries, order) = step(st.q, st.p, st.s, st.FL, dyn.masses[:, 0], h, st.carry_q,
-                               st.carry_p, st.carry_s, st.carry_mid, W, st.Wnext, scale,
-                               dyn.tol, 64.0 * dyn.tol, max_iter, st.theta[stage],
-                               lattice_data, piece_q[3], piece_t[3], reference, 0.5 * ev.skin,
-                               dyn._settled_tol(), memory, local, switch, predict, coef, hs,
-                               n_history, st.probe)
+     geometries, order, settle) = step(st.q, st.p, st.s, st.FL, dyn.masses[:, 0], h,
+                                       st.carry_q, st.carry_p, st.carry_s, st.carry_mid, W,
+                                       st.Wnext, scale, dyn.tol,
+                                       collective.first_tolerance(dyn.tol, st.settle[stage]),
+                                       64.0 * dyn.tol, max_iter, st.theta[stage], lattice_data,
+                                       piece_q[3], piece_t[3], reference, 0.5 * ev.skin,
+                                       dyn._settled_tol(), memory, local, switch, predict, coef,
+                                       hs, n_history, st.probe)
     if status != _DONE:
         return None
     st.theta[stage] = theta
     st.Wnext = Wnext
     st.FL, st.EL, st.EL_terms, st.VL = FL, None, None, None
     st.carry_q, st.carry_s = carry_q, carry_s
+    if settle >= 0.0:
+        st.settle[stage] = settle
     if predict:  # CollectivePRK._remember_midpoint, its order found inside the step
         st.predictor_order[stage] = order
-        history.append(W)
+        history.append(kernels.increment(W, st.s))
     else:
         dyn._remember_midpoint(stage, W)
     st.q, st.p, st.s = qt, P, s_new

@@ -673,7 +673,7 @@ def _last_four(history):
 
 
 def _last(history, order=PREDICTOR_DEPTH):
-    """The last :data:`PREDICTOR_DEPTH` midpoints, newest first, padded with
+    """The last :data:`PREDICTOR_DEPTH` entries, newest first, padded with
     the newest (coefficient 0 there): one tuple type, one compiled kernel.
     Beyond ``order`` + 1 the newest again (a zero coefficient times it adds
     the same +0.0, and a large system then reads only the arrays it uses)."""
@@ -682,22 +682,27 @@ def _last(history, order=PREDICTOR_DEPTH):
     return tuple(history[-1 - k] if n > k else h0 for k in range(PREDICTOR_DEPTH))
 
 
-def extrapolate(history, order):
-    """Predict the next midpoint spins from earlier ones (``history``, oldest
-    first, at most :data:`PREDICTOR_DEPTH`) by polynomial extrapolation of the
-    given order, renormalised:
+def extrapolate(history, order, base):
+    """Predict the next midpoint spins from the increments D = W − s of earlier
+    steps (``history``, oldest first, at most :data:`PREDICTOR_DEPTH`) by
+    polynomial extrapolation of the given order, renormalised:
 
-        W = normalise(Σ_m c_m h_m),   c_m = (−1)^m C(order+1, m+1),
+        W = normalise(base + Σ_m c_m D_m),   c_m = (−1)^m C(order+1, m+1),
 
-    h_0 the newest."""
+    D_0 the newest, ``base`` the spins at the start of the step."""
     out = np.empty_like(history[-1])
-    _extrapolate(_COEFFICIENTS[order], *_last(history, order), out)
+    _extrapolate(_COEFFICIENTS[order], *_last(history, order), base, out)
     return out
 
 
-@nb.njit(cache=True, inline="always")
-def _extrapolated(c, h0, h1, h2, h3, i, k):
-    return c[0] * h0[i, k] + c[1] * h1[i, k] + c[2] * h2[i, k] + c[3] * h3[i, k]
+@threaded()
+def increment(W, s):
+    """W − s (a midpoint's increment over the spins at the start of its step)."""
+    out = np.empty_like(W)
+    for i in nb.prange(W.shape[0]):
+        for k in range(3):
+            out[i, k] = W[i, k] - s[i, k]
+    return out
 
 
 @nb.njit(cache=True, inline="always")
@@ -711,11 +716,14 @@ def _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, i, k
 
 
 @threaded()
-def _extrapolate(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, out):
+def _extrapolate(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, base, out):
     for i in nb.prange(h0.shape[0]):
-        x = _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, i, 0)
-        y = _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, i, 1)
-        z = _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, i, 2)
+        x = base[i, 0] + _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10,
+                                            h11, i, 0)
+        y = base[i, 1] + _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10,
+                                            h11, i, 1)
+        z = base[i, 2] + _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10,
+                                            h11, i, 2)
         norm = np.sqrt(x * x + y * y + z * z)
         if norm > 0.0:
             x /= norm
@@ -724,6 +732,11 @@ def _extrapolate(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, out):
         out[i, 0] = x
         out[i, 1] = y
         out[i, 2] = z
+
+
+@nb.njit(cache=True, inline="always")
+def _extrapolated(c, h0, h1, h2, h3, i, k):
+    return c[0] * h0[i, k] + c[1] * h1[i, k] + c[2] * h2[i, k] + c[3] * h3[i, k]
 
 
 @nb.njit(cache=True)
