@@ -239,6 +239,11 @@ def cores_taken_by_others(window=0.05, valid=10.0):
     return taken
 
 
+#: Steps at the start of a run that are not timed: they compile kernels and fill
+#: the midpoint predictor's history (its order rises over the first ~12 steps, and
+#: with it the sweeps per step fall several-fold), so their times do not compare.
+WARMUP = 12
+
 #: A losing probe step is followed by at least this many times its own
 #: duration before the next probe: probing costs at most ~1/PROBE_BUDGET.
 PROBE_BUDGET = 20.0
@@ -249,7 +254,8 @@ class AdaptiveThreads:
 
     ``threads="auto"`` (the default; or the environment variable
     ``ASE_SPIN_THREADS``): every step runs with all configured threads or with
-    one, whichever made the last measured step faster. The current choice is
+    one, whichever made the last measured step faster (the first
+    :data:`WARMUP` steps are not timed). The current choice is
     timed at every step, so a core taken by another process shows at once; the
     other choice is timed again once per ``probe`` seconds of wall time (the
     interval doubles, up to 64 s, while it keeps losing, and is at least
@@ -265,7 +271,8 @@ class AdaptiveThreads:
         self.fixed = _threads_setting(threads)
         self.most = chunks()
         self.time = {}  # threads -> last measured step time (s)
-        self.seen = {}  # threads -> steps timed (the first, with compilation, is dropped)
+        self.seen = {}  # threads -> steps run
+        self.steps = 0
         self.choice = self.fixed or self.most
         self._probe = probe
         self._interval = probe
@@ -336,7 +343,8 @@ class AdaptiveThreads:
 
     def _record(self, n, elapsed):
         self.seen[n] = self.seen.get(n, 0) + 1
-        if self.seen[n] == 1:  # the first step at a count may include compilation
+        self.steps += 1
+        if self.steps <= WARMUP:  # compilation, the predictor's history filling
             return
         before = self._best()
         self.time[n] = elapsed

@@ -34,22 +34,26 @@ def test_trajectory_is_bitwise_the_same_with_one_thread_or_all(cls):
 
 
 def test_adaptive_choice_follows_the_faster_setting(monkeypatch):
-    """With made-up step times on an idle machine: both settings are timed
-    (first step at each dropped), the faster is kept, the other re-probed, and
-    a slowdown of the current choice switches at once."""
+    """With made-up step times on an idle machine: after the untimed warm-up
+    (all threads), both settings are timed, the faster is kept, the other
+    re-probed, and a slowdown of the current choice switches at once."""
     monkeypatch.setattr(threads, "cores_taken_by_others", lambda: 0.0)
     control = AdaptiveThreads("auto", probe=1e9)
     control.most = 2
     times = {2: 5.0, 1: 1.0}
+    warm = threads.WARMUP
     chosen, probes = [], []
-    for _ in range(8):
+    for k in range(warm + 6):
         n = control._choose()
         chosen.append(n)
         probes.append(control._probing)
         control._record(n, times[n])
-    assert chosen[:4] == [2, 2, 1, 1]      # each measured twice (first dropped)
-    assert chosen[4] == 2 and probes[4]    # the first probe, then none for 1e9 s
-    assert chosen[5:] == [1, 1, 1] and not any(probes[5:])
+        if k == warm - 1:
+            assert not control.time  # warm-up: not timed
+    assert chosen[:warm] == [2] * warm
+    assert chosen[warm:warm + 2] == [2, 1]            # each timed once
+    assert chosen[warm + 2] == 2 and probes[warm + 2]  # the first probe, then none for 1e9 s
+    assert chosen[warm + 3:] == [1, 1, 1] and not any(probes[warm + 3:])
     times[1] = 10.0                          # a core got busy: one slow step switches
     control._record(control._choose(), times[1])
     assert control._choose() == 2
@@ -65,12 +69,13 @@ def test_busy_machine_starts_with_one_thread(monkeypatch):
     control = AdaptiveThreads("auto", probe=1.0)
     control.most = 2
     chosen = []
-    for _ in range(6):  # 0.1 s per step: within the first probe interval
+    steps = threads.WARMUP + 4
+    for _ in range(steps):  # 0.05 s per step: within the first probe interval
         n = control._choose()
         chosen.append(n)
-        control._record(n, 0.1)
-        clock[0] += 0.1
-    assert chosen == [1] * 6
+        control._record(n, 0.05)
+        clock[0] += 0.05
+    assert chosen == [1] * steps
     clock[0] = 1.5
     assert control._choose() == 2  # the probe is due
 
