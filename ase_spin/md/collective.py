@@ -35,6 +35,9 @@ SOLVERS = {"anderson": (kernels.MEMORY, True), "local": (0, True), "jacobi": (0,
 # step size; a Jacobi solve not done in _AUTO_JACOBI_SWEEPS is redone by it.
 _AUTO_SWITCH = 0.4
 _AUTO_JACOBI_SWEEPS = 40
+# Contraction per sweep above which "auto" keeps a copy of the starting guess for
+# the retry (below it, 40 Jacobi sweeps gain over 27 decades: they do not fail)
+_KEEP_GUESS = 0.2
 #: The first midpoint solve of a (sub)step is converged to this fraction of how far
 #: the update of q̃ moved W in the last step (see first_tolerance).
 FIRST_SOLVE_FRACTION = 0.1
@@ -55,14 +58,23 @@ def first_tolerance(tol, settle):
     return min(1e-6, max(tol, FIRST_SOLVE_FRACTION * settle))
 
 
-def predictor_depth(stages):
-    """Midpoints kept per stage for the predictor: all
+#: From this many atoms on, the predictor keeps 4 increments per stage: memory
+#: per atom, not speed, is then the limit (a 10⁶-atom run within 2 KiB per atom).
+LARGE_SYSTEM = 500_000
+
+
+def predictor_depth(stages, natoms=0):
+    """Increments kept per stage for the predictor: all
     :data:`~ase_spin.md.kernels.PREDICTOR_DEPTH` (12, extrapolation up to order
     11) for the one-stage second-order step (288 bytes per atom; each order is
     ~10× more accurate than the one below at 0.1 fs, and the solve takes about
     one sweep less per factor 30), fewer for the compositions (5 stages: 6 each,
     9 stages: 4 each): at most 36 arrays of (N, 3) for all stages, 864 bytes per
-    atom, what order 6 kept before (4 per stage)."""
+    atom, what order 6 kept before (4 per stage). From :data:`LARGE_SYSTEM`
+    atoms, 4 per stage (96 bytes per atom and stage; ~6 more sweeps per step
+    at 0.1 fs)."""
+    if natoms >= LARGE_SYSTEM:
+        return 4
     return min(kernels.PREDICTOR_DEPTH, max(4, 32 // stages))
 
 
@@ -183,7 +195,8 @@ class CollectivePRK(SpinLatticeDynamics):
     def _prepare(self, st):
         """Per-stage predictor history and contraction estimates, the buffers of
         the midpoint iteration."""
-        st.history = [deque(maxlen=predictor_depth(len(self.gammas))) for _ in self.gammas]
+        depth = predictor_depth(len(self.gammas), len(st.s))
+        st.history = [deque(maxlen=depth) for _ in self.gammas]
         st.predictor_order = [0 for _ in self.gammas]
         st.theta = [1.0 for _ in self.gammas]
         st.settle = [0.0 for _ in self.gammas]
@@ -326,8 +339,10 @@ class CollectivePRK(SpinLatticeDynamics):
         if solver == "auto":
             solver = st.modes.get((stage, h), "jacobi")
         if solver == "jacobi" and self._solver == "auto":
-            # cheap sweeps while they contract fast; the stiff case is retried below
-            guess = W.copy()
+            # cheap sweeps while they contract fast; the stiff case is retried below,
+            # from the starting guess if Jacobi contracted slowly last time (a copy:
+            # 24 bytes per atom at the step's peak memory), else from its last iterate
+            guess = W.copy() if st.theta[stage] > _KEEP_GUESS else None
             its, delta, status, which, theta, moved = self._run_solver(
                 s, operators, W, h, stage, mean, scale, stilde, carry, tol, "jacobi",
                 min(self.max_iter, _AUTO_JACOBI_SWEEPS))
@@ -339,7 +354,10 @@ class CollectivePRK(SpinLatticeDynamics):
             st.modes[(stage, h)] = "anderson"
             st.theta[stage] = 1.0
             if status == kernels.NOT_CONVERGED:
-                W = guess
+                if guess is not None:
+                    W = guess
+                elif which == 1:
+                    W, st.Wnext = st.Wnext, W
                 spent = its
                 its, delta, status, which, theta, moved = self._run_solver(
                     s, operators, W, h, stage, mean, scale, stilde, carry, tol, "anderson",
