@@ -58,7 +58,15 @@ def _exercise(atoms, dyn):
     atoms.get_stress()
     atoms.calc.get_magnetic_forces(atoms)
     if dyn is not None:
-        dyn.run(2)
+        # the fused step of small systems too: without a warm-up it is compiled
+        # only for runs long enough to repay it (md/fused.py)
+        from .md import fused
+
+        saved, fused.FUSE_AFTER_STEPS = fused.FUSE_AFTER_STEPS, 0
+        try:
+            dyn.run(2)
+        finally:
+            fused.FUSE_AFTER_STEPS = saved
 
 
 def _builtin(task):

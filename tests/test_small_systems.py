@@ -16,6 +16,36 @@ from ase_spin.scenes import fcc_cobalt, field_anisotropy_terms, paper_chain, pap
 from ase_spin.terms import Cubic, Exchange, LennardJones, lennard_jones
 
 
+@pytest.fixture(autouse=True)
+def _fuse_short_runs(monkeypatch):
+    """These tests run a few steps: let systems of 64–1 500 atoms take the
+    fused step without the length a run needs to repay its compilation."""
+    monkeypatch.setattr(fused, "FUSE_AFTER_STEPS", 0)
+
+
+def test_fused_step_of_small_systems_waits_for_a_long_run_or_the_cache():
+    """64–1 500 atoms: the fused step is compiled only for a run long enough to
+    repay it (~15 s once per install), unless it is compiled already."""
+    from types import SimpleNamespace
+
+    cold = SimpleNamespace(overloads={}, _cache=SimpleNamespace(
+        _cache_file=SimpleNamespace(_index_path="/nonexistent/ase_spin_fused.nbi")))
+    warm = SimpleNamespace(overloads={"sig": object()})
+    short = SimpleNamespace(max_steps=500, nsteps=0)
+    long = SimpleNamespace(max_steps=10**6, nsteps=10)
+    limit = 20_000
+    assert fused.FUSE_AFTER_STEPS == 0  # (this module's fixture)
+    fused.FUSE_AFTER_STEPS = limit
+    try:
+        assert not fused._pays(short, cold)
+        assert fused._pays(long, cold)
+        assert fused._pays(short, warm)
+        assert fused._pays(SimpleNamespace(max_steps=limit + 5, nsteps=5), cold)
+        assert not fused._pays(SimpleNamespace(max_steps=limit + 5, nsteps=6), cold)
+    finally:
+        fused.FUSE_AFTER_STEPS = 0
+
+
 @pytest.mark.parametrize("nthreads", [1, 2, 3])
 @pytest.mark.parametrize("twin", ["serial", "parallel"])
 def test_kick_drift_is_kick_then_drift_bitwise(nthreads, twin):

@@ -23,6 +23,8 @@ then takes the step (and raises its error, if any).
 
 from __future__ import annotations
 
+import os
+
 import numba as nb
 import numpy as np
 
@@ -260,6 +262,31 @@ def _import_collective():
     return collective
 
 
+#: Steps a run must still have ahead for a system of 64–1 500 atoms to compile its
+#: fused step when numba has not cached it yet: the compilation takes ~15 s once
+#: per install (benchmarks/first_use.py), the fused step saves ~80 µs per step at
+#: N = 500 (benchmarks/small_systems.py). Below 64 atoms it is always used.
+FUSE_AFTER_STEPS = 20_000
+
+
+def _compiled(step):
+    """Whether the fused step is compiled in this process or in numba's disk cache."""
+    if step.overloads:
+        return True
+    try:
+        return os.path.exists(step._cache._cache_file._index_path)
+    except AttributeError:  # another numba's internals: assume not
+        return False
+
+
+def _pays(dyn, step):
+    """Use the fused step of a system of 64–1 500 atoms: if it costs no
+    compilation (:func:`_compiled`) or the run is long enough to repay it."""
+    if _compiled(step):
+        return True
+    return getattr(dyn, "max_steps", 0) - dyn.nsteps >= FUSE_AFTER_STEPS
+
+
 def collective_step(dyn, h, stage):
     """CollectivePRK's second-order step of size h as one compiled call, when
     the system is small (light kernels serial: threads.small()) and every term
@@ -296,6 +323,8 @@ def collective_step(dyn, h, stage):
     step = pieces.get("step")
     if step is None:
         step = pieces["step"] = step_function(lattice_fn, piece_t[:3])
+    if not threads.tiny() and not _pays(dyn, step):
+        return None
     scale = st.scales.get(h)
     if scale is None:  # as CollectivePRK._solve
         scale = st.scales[h] = (h * dyn.sigma / dyn.hbar) * st.rate
