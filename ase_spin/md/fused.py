@@ -264,8 +264,10 @@ def _import_collective():
 
 #: Steps a run must still have ahead for a system of 64–1 500 atoms to compile its
 #: fused step when numba has not cached it yet: the compilation takes ~15 s once
-#: per install (benchmarks/first_use.py), the fused step saves ~80 µs per step at
-#: N = 500 (benchmarks/small_systems.py). Below 64 atoms it is always used.
+#: per install (benchmarks/first_use.py), which a short first run should not pay;
+#: a long run does, and every later run loads the step from the cache and saves
+#: ~80 µs per step at N = 500 (benchmarks/small_systems.py). Below 64 atoms it is
+#: always used.
 FUSE_AFTER_STEPS = 20_000
 
 
