@@ -80,7 +80,7 @@ class _GeneralPath:
     the drift and the checks as separate calls, the spin forces through
     Evaluator.spin."""
 
-    def _kick_drift(self, F, q, h, reference):
+    def _kick_drift(self, F, q, h, reference, out=None):
         st = self._state
         P = np.empty_like(st.p)
         kernels.kick(st.p, 0.5 * h, self._md_forces(F, q), st.carry_p, P, st.carry_mid)

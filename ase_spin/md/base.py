@@ -517,12 +517,13 @@ class SpinLatticeDynamics(MolecularDynamics):
             op.add(W, _FORCES, _NO_FIELD, F, _NO_ENERGIES)
         return F
 
-    def _kick_drift(self, F, q, h, reference):
+    def _kick_drift(self, F, q, h, reference, out=None):
         """The half kick P = p + (h/2) F(q) from the state's momenta and the
         drift q̃ = q + h P/m (:func:`kernels.kick` and :meth:`_drift`). Returns
         (q̃, P, the rounding error of q̃, max_i |q̃_i − q_i|, that atom,
         max |q̃ − reference|, max |q|). Without constraints in one compiled pass
-        (:func:`kernels.kick_drift`, the same arithmetic)."""
+        (:func:`kernels.kick_drift`, the same arithmetic), written into ``out``
+        = (q̃, P, carry) buffers if given (none of them ``reference``)."""
         st = self._state
         if self.atoms.constraints:
             P = np.empty_like(st.p)
@@ -531,9 +532,10 @@ class SpinLatticeDynamics(MolecularDynamics):
             moved, atom = max_displacement(q, qt)
             return (qt, P, carry, moved, atom, kernels.max_abs_difference(qt, reference),
                     float(np.abs(q).max()))
-        P = np.empty_like(q)
-        qt = np.empty_like(q)
-        carry = np.empty_like(q)
+        if out is None:
+            qt, P, carry = np.empty_like(q), np.empty_like(q), np.empty_like(q)
+        else:
+            qt, P, carry = out
         moved, atom, apart, largest = kernels.kick_drift(
             threads.count(), st.p, 0.5 * h, F, st.carry_p, P, st.carry_mid, q,
             self.masses[:, 0], h, st.carry_q, qt, carry, reference)

@@ -372,7 +372,8 @@ def collective_step(dyn, h, stage):
         st.settle[stage] = settle
     if predict:  # CollectivePRK._remember_midpoint, its order found inside the step
         st.predictor_order[stage] = order
-        history.append(kernels.increment(W, st.s))
+        oldest = history.popleft() if len(history) == history.maxlen else None
+        history.append(kernels.increment(W, st.s, oldest))
     else:
         dyn._remember_midpoint(stage, W)
     st.q, st.p, st.s = qt, P, s_new
