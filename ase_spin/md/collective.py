@@ -257,7 +257,7 @@ class CollectivePRK(SpinLatticeDynamics):
                 F, q, h, q if qt_used is None else qt_used, out)
             if qt_used is None:
                 self._check_moved(moved_q, atom, h)
-                qtol = 4.0 * _EPS * max(1.0, largest)
+                qtol = self._settled_qtol(largest)
             elif apart <= qtol:
                 if not loose:
                     break
@@ -299,6 +299,12 @@ class CollectivePRK(SpinLatticeDynamics):
         st.q, st.p, st.s = qt, self._adjust_momenta(P, qt), s_new
         st.ops, st.ops_next = st.ops_next, st.ops
         return iterations, geometries
+
+    def _settled_qtol(self, largest):
+        """How close q̃ of an outer round must come to the last round's for the
+        step to stand on the pair geometry prepared there: round-off of the
+        largest coordinate (``largest``), so that the step is the implicit map."""
+        return 4.0 * _EPS * max(1.0, largest)
 
     def _settled_tol(self):
         """How far W may move in an outer iteration for the kick and drift

@@ -43,7 +43,8 @@ _DONE, _GIVE_UP = 0, 1
 
 def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, scale, tol,
           first_tol, floor, max_iter, theta, lattice, op_q, op_t, reference, half_skin,
-          settled_tol, memory, local, switch, predict, coef, hs, n_history, probe):
+          settled_tol, qtol_floor, memory, local, switch, predict, coef, hs, n_history,
+          probe):
     """The skeleton of the fused step (compiled with ``lattice_forces``,
     ``spin_forces``, ``spin_geometry`` and ``spin_couplings`` bound to the
     terms' pieces): CollectivePRK._coupled_step for one spin operator on a
@@ -90,7 +91,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
         if first:
             if not moved <= half_skin:
                 return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle)
-            qtol = 4.0 * _EPS * max(1.0, largest)
+            qtol = max(4.0 * _EPS * max(1.0, largest), qtol_floor)
             first = False
         elif apart <= qtol:
             if not loose:
@@ -360,8 +361,8 @@ def collective_step(dyn, h, stage):
                                        collective.first_tolerance(dyn.tol, st.settle[stage]),
                                        64.0 * dyn.tol, max_iter, st.theta[stage], lattice_data,
                                        piece_q[3], piece_t[3], reference, 0.5 * ev.skin,
-                                       dyn._settled_tol(), memory, local, switch, predict, coef,
-                                       hs, n_history, st.probe)
+                                       dyn._settled_tol(), dyn._settled_qtol(0.0), memory,
+                                       local, switch, predict, coef, hs, n_history, st.probe)
     if status != _DONE:
         return None
     st.theta[stage] = theta

@@ -30,6 +30,8 @@ _NO_FORCES = np.zeros((0, 3))
 _NO_ENERGIES = np.zeros(0)
 #: Outer-iteration settling tolerance with a bath on (see Langevin._settled_tol).
 _SETTLED = 1e-12
+#: and of q̃ (Å), see Langevin._settled_qtol
+_SETTLED_Q = 1e-10
 
 
 # -- compiled per-spin pieces of the spin bath ------------------------------------
@@ -463,6 +465,14 @@ class Langevin(CollectivePRK):
         if self._spin_bath_on() or self.fr > 0.0:
             return max(super()._settled_tol(), _SETTLED)
         return super()._settled_tol()
+
+    def _settled_qtol(self, largest):
+        """With a bath on, q̃ within 1e-10 Å of the round before stands on the
+        geometry prepared there (couplings off by ~J'·1e-10 eV, far below the
+        noise): one geometry per step, where round-off took two."""
+        if self._spin_bath_on() or self.fr > 0.0:
+            return max(super()._settled_qtol(largest), _SETTLED_Q)
+        return super()._settled_qtol(largest)
 
     def _spin_bath_on(self):
         return self.magnetic and self.spin_damping > 0.0
