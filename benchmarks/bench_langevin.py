@@ -3,6 +3,7 @@ CollectivePRK step, side by side on the same fcc Co crystal, at two sizes.
 
     python benchmarks/bench_langevin.py [--n 10 20] [--dt 0.1] [--steps 40] [--rounds 5]
     python benchmarks/bench_langevin.py --compare /work/main   # before/after
+    python benchmarks/bench_langevin.py --threads 2            # a fixed thread count
 
 ``--compare TREE``: this tree's ase_spin and TREE's, each in its own process
 (one round per process, the trees alternating round by round), the ratio
@@ -46,6 +47,9 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--temperature", type=float, default=300.0)
     ap.add_argument("--compare", default=None, help="another source tree (before/after)")
+    ap.add_argument("--threads", default="auto",
+                    help='"auto" (the default, as users run) or a fixed count: "auto" probes '
+                         "the other count now and then, which scatters short rounds")
     ap.add_argument("--json", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.compare:
@@ -56,9 +60,11 @@ def main(argv=None):
     dyns = {}
     for n in args.n:
         dyns[n] = {
-            "NVE": CollectivePRK(fcc_cobalt(n, temperature_K=T), args.dt * units.fs),
+            "NVE": CollectivePRK(fcc_cobalt(n, temperature_K=T), args.dt * units.fs,
+                                 threads=args.threads),
             "Langevin": Langevin(fcc_cobalt(n, temperature_K=T), args.dt * units.fs, T,
-                                 spin_damping=0.1, friction=0.01 / units.fs, rng=1),
+                                 spin_damping=0.1, friction=0.01 / units.fs, rng=1,
+                                 threads=args.threads),
         }
         for d in dyns[n].values():  # compile, fill the predictor history
             d.run(20)
