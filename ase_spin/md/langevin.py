@@ -556,8 +556,13 @@ class Langevin(CollectivePRK):
         return W
 
     def _remember_midpoint(self, stage, W):
-        super()._remember_midpoint(stage, W)
         st = self._state
+        if stage == 0 and st.B_start is not None and self._spin_bath_on():
+            # stage 0 is predicted from the remainders below: CollectivePRK's
+            # history of increments would cost a pass and 288 bytes per atom
+            st.history[0].clear()
+        else:
+            super()._remember_midpoint(stage, W)
         if stage != 0:
             return
         history = st.increments
