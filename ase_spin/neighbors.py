@@ -380,6 +380,16 @@ def _bin_sort(bins, nbins):
     return start, order
 
 
+@nb.njit(cache=True, inline="always")
+def _bin_along(c, n, periodic):
+    """Bin c of a row of n along one axis: (the bin in the cell, the cell
+    images it lies over, whether it exists — outside an open axis it does not)."""
+    if periodic:
+        shift = c // n
+        return c - shift * n, shift, True
+    return c, 0, 0 <= c < n
+
+
 @nb.njit(cache=True)
 def _grid_row(i, pos, cell, bins, off, start, order, psorted, osorted, nbins, rb, periodic,
               cut2, hw, fill, k0, j_out, img_out, s_out, lookup, present):
@@ -401,28 +411,16 @@ def _grid_row(i, pos, cell, bins, off, start, order, psorted, osorted, nbins, rb
     dense = present.shape[0] > 0 or lookup.shape[0] > 0
     count = 0
     for d0 in range(-rb[0], rb[0] + 1):
-        c0 = b0 + d0
-        s0 = 0
-        if periodic[0]:
-            s0 = c0 // nbins[0]
-            c0 -= s0 * nbins[0]
-        elif c0 < 0 or c0 >= nbins[0]:
+        c0, s0, inside = _bin_along(b0 + d0, nbins[0], periodic[0])
+        if not inside:
             continue
         for d1 in range(-rb[1], rb[1] + 1):
-            c1 = b1 + d1
-            s1 = 0
-            if periodic[1]:
-                s1 = c1 // nbins[1]
-                c1 -= s1 * nbins[1]
-            elif c1 < 0 or c1 >= nbins[1]:
+            c1, s1, inside = _bin_along(b1 + d1, nbins[1], periodic[1])
+            if not inside:
                 continue
             for d2 in range(-rb[2], rb[2] + 1):
-                c2 = b2 + d2
-                s2 = 0
-                if periodic[2]:
-                    s2 = c2 // nbins[2]
-                    c2 -= s2 * nbins[2]
-                elif c2 < 0 or c2 >= nbins[2]:
+                c2, s2, inside = _bin_along(b2 + d2, nbins[2], periodic[2])
+                if not inside:
                     continue
                 b = (c0 * nbins[1] + c1) * nbins[2] + c2
                 for t in range(start[b], start[b + 1]):

@@ -255,33 +255,31 @@ class CollectivePRK(SpinLatticeDynamics):
                 spare = qt_used
             qt, P, carry_q, moved_q, atom, apart, largest = self._kick_drift(
                 F, q, h, q if qt_used is None else qt_used, out)
+            new_q = True  # a new q̃ gets its couplings
             if qt_used is None:
                 self._check_moved(moved_q, atom, h)
                 qtol = self._settled_qtol(largest)
             elif apart <= qtol:
                 if not loose:
                     break
-                # q̃ settled after the loose first solve: finish it at these couplings,
-                # then check q̃ once more
-                loose = False
-                W, s_new, its, moved, carry_s = self._solve(s, st.ops_next, W, h, stage)
-                iterations += its
-                if moved <= self._settled_tol():
-                    break
-                continue
-            if ev.refresh(qt):  # a new pair list: the operators at q must use it too
-                st.ops = ev.spin_operators(q, out=st.ops, half=self.half_lists)
-            st.ops_next = ev.spin_operators(qt, out=st.ops_next, mean_with=st.ops,
-                                            half=self.half_lists)
-            geometries += 1
+                # q̃ settled after the loose first solve: finish that solve at its
+                # couplings, then check q̃ once more
+                new_q = False
+            if new_q:
+                if ev.refresh(qt):  # a new pair list: the operators at q must use it too
+                    st.ops = ev.spin_operators(q, out=st.ops, half=self.half_lists)
+                st.ops_next = ev.spin_operators(qt, out=st.ops_next, mean_with=st.ops,
+                                                half=self.half_lists)
+                geometries += 1
             tol = first_tol if solves == 0 else self.tol
             W, s_new, its, moved, carry_s = self._solve(s, st.ops_next, W, h, stage, tol=tol)
             iterations += its
-            qt_used = qt
             loose = tol > self.tol
-            solves += 1
-            if solves == 2:
-                settle = moved
+            if new_q:
+                qt_used = qt
+                solves += 1
+                if solves == 2:
+                    settle = moved
             if moved <= self._settled_tol():
                 # W moved by round-off only: P and q̃ computed from it stand
                 break

@@ -88,6 +88,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
         carry_qt = np.empty_like(q)
         moved, atom, apart, largest = kick_drift(  # noqa: F821
             1, p, 0.5 * h, F, carry_p, P, carry_mid, q, m, h, carry_q, qt, carry_qt, qt_used)
+        new_q = True  # as CollectivePRK: a new q̃ gets its couplings
         if first:
             if not moved <= half_skin:
                 return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle)
@@ -97,30 +98,13 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
             if not loose:
                 settled = True
                 break
-            # as CollectivePRK: finish the loose first solve at these couplings
-            loose = False
-            row, nbr, c = spin_couplings(op_t)  # noqa: F821
-            stilde = np.zeros_like(s)
-            carry = np.zeros_like(s)
-            its, delta, status, which, measured, moved_w = solve_half(  # noqa: F821
-                1, row, nbr, c, s, W, Wnext, stilde, scale, tol, floor, max_iter,
-                min(1.0, 2.0 * theta), carry_s, carry, memory, local)
-            if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch):
+            new_q = False  # settled after the loose first solve: finish it at its couplings
+        if new_q:
+            # the pair list must stay valid at q̃ (else the general path rebuilds it)
+            if not max_displacement(qt, reference)[0] <= half_skin:
                 return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle)
-            if measured < 1.0:
-                theta = measured
-            if which == 1:
-                W, Wnext = Wnext, W
-            iterations += its
-            if moved_w <= settled_tol:
-                settled = True
-                break
-            continue
-        # the pair list must stay valid at q̃ (else the general path rebuilds it)
-        if not max_displacement(qt, reference)[0] <= half_skin:
-            return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle)
-        spin_geometry(qt, op_t, op_q)  # noqa: F821
-        geometries += 1
+            spin_geometry(qt, op_t, op_q)  # noqa: F821
+            geometries += 1
         row, nbr, c = spin_couplings(op_t)  # noqa: F821
         stilde = np.zeros_like(s)
         carry = np.zeros_like(s)
@@ -135,11 +119,12 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
         if which == 1:
             W, Wnext = Wnext, W
         iterations += its
-        qt_used = qt
         loose = use_tol > tol
-        solves += 1
-        if solves == 2:
-            settle = moved_w
+        if new_q:
+            qt_used = qt
+            solves += 1
+            if solves == 2:
+                settle = moved_w
         if moved_w <= settled_tol:
             settled = True
             break
