@@ -237,16 +237,23 @@ def _explicit_midpoint(sx, sy, sz, bx, by, bz, c):
 
 
 @threaded()
-def predict_midpoint(s, B, c, R0, R1, R2, R3, coef, out):
-    """out_i = (:func:`_explicit_midpoint` + Σ_k coef_k R_k,i) / |…| (magnetic rows)."""
+def predict_midpoint(s, B, c, R0, R1, R2, R3, coef, out, known):
+    """out_i = (:func:`_explicit_midpoint` + Σ_k coef_k R_k,i) / |…| (magnetic rows),
+    the explicit part into ``known`` (for :func:`midpoint_remainder`'s W − known)."""
     for i in nb.prange(s.shape[0]):
         sx, sy, sz = s[i, 0], s[i, 1], s[i, 2]
         if sx == 0.0 and sy == 0.0 and sz == 0.0:
             out[i, 0] = 0.0
             out[i, 1] = 0.0
             out[i, 2] = 0.0
+            known[i, 0] = 0.0
+            known[i, 1] = 0.0
+            known[i, 2] = 0.0
             continue
         vx, vy, vz = _explicit_midpoint(sx, sy, sz, B[i, 0], B[i, 1], B[i, 2], c[i])
+        known[i, 0] = vx
+        known[i, 1] = vy
+        known[i, 2] = vz
         vx += _extrapolated(coef, R0, R1, R2, R3, i, 0)
         vy += _extrapolated(coef, R0, R1, R2, R3, i, 1)
         vz += _extrapolated(coef, R0, R1, R2, R3, i, 2)
@@ -435,6 +442,9 @@ class Langevin(CollectivePRK):
         st.increment_order = 0
         st.s_start = st.s
         st.B_start = None  # fields at s_start (from the bath's last pass), if known
+        # the explicit part of the midpoint predicted from s_start (see _predict):
+        # W − it is the remainder kept, without a second pass
+        st.known = st.known_for = None
         st.bath_coefficients = {}
         st.s_before = np.zeros((n, 3))
         st.no_damping = np.zeros(n)
@@ -590,7 +600,10 @@ class Langevin(CollectivePRK):
         coef = kernels._EXTRAPOLATION[min(st.increment_order, len(history) - 1)]
         R = kernels._last_four(history)
         W = np.empty_like(st.s)
-        predict_midpoint(st.s, st.B_start, self._coefficients()[3], *R, coef, W)
+        if st.known is None or st.known.shape != W.shape:
+            st.known = np.empty_like(W)
+        predict_midpoint(st.s, st.B_start, self._coefficients()[3], *R, coef, W, st.known)
+        st.known_for = st.s_start  # the explicit part of this start's midpoint is known
         return W
 
     def _remember_midpoint(self, stage, W):
@@ -608,7 +621,11 @@ class Langevin(CollectivePRK):
             history.clear()
             return
         R = np.empty_like(W)
-        midpoint_remainder(W, st.s_start, st.B_start, self._coefficients()[3], R)
+        if st.known_for is st.s_start:
+            np.subtract(W, st.known, out=R)
+        else:
+            midpoint_remainder(W, st.s_start, st.B_start, self._coefficients()[3], R)
+        st.known_for = None
         if history:
             st.increment_order = kernels.best_extrapolation_order(history, R, st.probe)
         history.append(R)
