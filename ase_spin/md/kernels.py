@@ -764,8 +764,11 @@ def best_extrapolation_order(history, W, rows, base=None):
     those rows are read: no array of the system's size is made)."""
     picked = np.arange(len(rows))
     D = W[rows] if base is None else W[rows] - base[rows]
-    return _best_order(min(len(history), PREDICTOR_DEPTH),
-                       *(h[rows] for h in _last(history)), D, picked)
+    n = min(len(history), PREDICTOR_DEPTH)
+    # each increment sampled once; the padding (as _last's) repeats the newest
+    taken = [history[-1 - k][rows] for k in range(n)]
+    taken += [taken[0]] * (PREDICTOR_DEPTH - n)
+    return _best_order(n, *taken, D, picked)
 
 
 @nb.njit(cache=True)
