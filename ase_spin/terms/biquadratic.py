@@ -5,13 +5,12 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from ..neighbors import separation
 from ..validate import flag
 from .base import PairSpinTerm
-from .exchange import Exchange
+from .exchange import _NO_D, Exchange, _copy_positions
 
 __all__ = ["BiquadraticExchange"]
-
-_NO_D = np.zeros((0, 3))
 
 
 @nb.njit(cache=True, inline="always")
@@ -27,18 +26,32 @@ def _field(k, a, b, s, data, reverse):
 @nb.njit(cache=True, inline="always")
 def _energy(k, i, j, s, data):
     """e = −[J (w − c) + K (w² − c)], w = s_i·s_j; the force on j,
-    f = (w − c) J' d/r + (w² − c) K' d/r; d_ij."""
-    J, K, G, H, D, c = data
+    f = (w − c) G + (w² − c) H with G = J' d/r, H = K' d/r; d_ij = (r_j − r_i)
+    + S_k, recomputed from the positions the operator was prepared at.
+    ``data``: J, K per pair; J'/r, K'/r per pair and G, H per pair (one of the
+    two pairs of arrays empty: see exchange.PAIR_VECTORS_BELOW; G formed as
+    (J'/r)·d, the same bits as stored); those positions, the image shifts and
+    their index per pair (no positions: G, H kept and no virial wanted); c."""
+    J, K, gJ, gK, GJ, GK, pos, images, image, c = data
     w = s[i, 0] * s[j, 0] + s[i, 1] * s[j, 1] + s[i, 2] * s[j, 2]
     a = w - c
     b = w * w - c
     e = -(J[k] * a + K[k] * b)
-    fx = a * G[k, 0] + b * H[k, 0]
-    fy = a * G[k, 1] + b * H[k, 1]
-    fz = a * G[k, 2] + b * H[k, 2]
-    if D.shape[0] > 0:
-        return e, fx, fy, fz, D[k, 0], D[k, 1], D[k, 2]
-    return e, fx, fy, fz, 0.0, 0.0, 0.0
+    if pos.shape[0] > 0:
+        dx, dy, dz, r2 = separation(pos, images, i, j, image[k])
+    else:  # G, H kept and no virial asked at preparation
+        dx = dy = dz = 0.0
+    if GJ.shape[0] > 0:
+        fx = a * GJ[k, 0] + b * GK[k, 0]
+        fy = a * GJ[k, 1] + b * GK[k, 1]
+        fz = a * GJ[k, 2] + b * GK[k, 2]
+    else:
+        g = gJ[k]
+        h = gK[k]
+        fx = a * (g * dx) + b * (h * dx)
+        fy = a * (g * dy) + b * (h * dy)
+        fz = a * (g * dz) + b * (h * dz)
+    return e, fx, fy, fz, dx, dy, dz
 
 
 @nb.njit(cache=True, inline="always")
@@ -142,17 +155,25 @@ class BiquadraticExchange(PairSpinTerm):
 
     def prepare(self, positions, pairs, types, bound, *, virial=False, out=None,
                 mean_with=None):
+        """The operator at ``positions``: J, K and J' d/r, K' d/r per pair, or
+        J'/r, K'/r (two exchange operators' arrays, see
+        :class:`~ase_spin.terms.exchange.ExchangeOperator`), and one copy of the
+        positions, shared by both, from which the passes recompute d."""
         J, K = self._parts()
         previous = out.extra if out is not None and out.pairs is pairs else (None, None)
         other = mean_with.extra if mean_with is not None else (None, None)
-        opJ = J.prepare(positions, pairs, types, bound[0], virial=virial, out=previous[0],
-                        mean_with=other[0])
-        opK = K.prepare(positions, pairs, types, bound[1], virial=virial, out=previous[1],
-                        mean_with=other[1])
+        opJ = J._operator(pairs, previous[0], len(positions), virial)
+        opK = K._operator(pairs, previous[1], len(positions), virial)
+        if opJ.pos is not None:
+            # one copy for both (they are always prepared together, at the same q)
+            opJ.pos = opK.pos = positions = _copy_positions(positions, opJ.pos)
+        J._fill(opJ, positions, types, bound[0], other[0])
+        K._fill(opK, positions, types, bound[1], other[1])
         c = 1.0 if self.offset else 0.0
-        D = opJ.D if opJ.D is not None else _NO_D
-        data = (opJ.J, opK.J, opJ.G, opK.G, D, c)
-        mean_data = ((opJ.Jbar, opK.Jbar, opJ.G, opK.G, D, c) if opJ.Jbar is not None
+        geometry = (opJ.pos if opJ.pos is not None else _NO_D, pairs.images, pairs.image, c)
+        vectors = (opJ.g, opK.g, opJ.G, opK.G)
+        data = (opJ.J, opK.J, *vectors, *geometry)
+        mean_data = ((opJ.Jbar, opK.Jbar, *vectors, *geometry) if opJ.Jbar is not None
                      else None)
         op = self.operator(pairs, data, mean_data)
         op.extra = (opJ, opK)

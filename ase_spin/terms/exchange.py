@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import types
+
 import numba as nb
 import numpy as np
 
@@ -138,13 +140,33 @@ def _check_coupling(c, what):
     return c
 
 
+#: Below this many atoms the exchange operators keep the vector G = J'(r) d/r of
+#: every pair (three doubles); from it on, g = J'(r)/r (one double) and the
+#: force passes recompute d from the operator's copy of the positions. Recomputing
+#: d makes a force pass 8–31 % slower at 500–10⁶ atoms (more loads and products
+#: per pair; benchmarks/exchange_passes.py); g saves 16 bytes per pair, 2 × 144 bytes per
+#: atom of fcc Co (9 pairs each, operators at q and q̃), where memory per atom,
+#: not speed, is the limit: from the size at which CollectivePRK also keeps
+#: fewer predictor increments (collective.LARGE_SYSTEM). The results are the
+#: same bit for bit (G = g·d is the same product either way).
+PAIR_VECTORS_BELOW = 500_000
+
+
 class ExchangeOperator(SpinOperator):
     """Exchange prepared at one set of positions (a :class:`SpinOperator`).
 
-    For every pair k = (i → j) of ``pairs``: ``J[k] = J(r_ij)`` and
-    ``G[k] = J'(r_ij) d_ij / r_ij`` with d_ij = r_j + S_ij − r_i; ``D`` holds
-    d_ij when a virial is wanted. J = G = 0 unless r² < rc² (LAMMPS's rule).
-    Spins do not enter: it stays valid while only the spins change.
+    For every pair k = (i → j) of ``pairs``: ``J[k] = J(r_ij)`` and either
+    ``G[k] = J'(r_ij) d_ij / r_ij`` (three doubles per pair; systems below
+    :data:`PAIR_VECTORS_BELOW` atoms) or ``g[k] = J'(r_ij) / r_ij`` (one
+    double), with d_ij = r_j + S_ij − r_i; J = G = g = 0 unless r² < rc²
+    (LAMMPS's rule). The other of G, g is empty. ``pos`` is the operator's own
+    copy of the positions it was prepared at (with g, or when prepared with
+    ``virial=True``; else None): the passes recompute d_ij from it (as
+    :func:`~ase_spin.neighbors.separation` forms it, as the preparation did)
+    for the virial, and with g for the forces, G = g d_ij — the same bits as G
+    stored. The copy keeps the operator valid whatever happens to the caller's
+    position array (integrators reuse their buffers). Spins do not enter: it
+    stays valid while only the spins change.
 
     ``Jbar`` (when prepared with ``mean_with``) is ½[J + J_other] with the J of
     the operator at the other end of the step, on the same pairs: the couplings
@@ -152,10 +174,12 @@ class ExchangeOperator(SpinOperator):
     the same pass over the pairs.
     """
 
-    __slots__ = ("pairs", "J", "G", "D", "Jbar", "offset", "params")
+    __slots__ = ("pairs", "J", "g", "G", "pos", "Jbar", "offset", "params", "stored")
 
-    def __init__(self, pairs, J, G, D, offset=0.0):
-        self.pairs, self.J, self.G, self.D = pairs, J, G, D
+    def __init__(self, pairs, J, g, G, pos, offset=0.0):
+        self.pairs, self.J, self.g, self.G, self.pos = pairs, J, g, G, pos
+        # the pair vectors G are kept (else g = J'(r)/r; G is then the empty _NO_D)
+        self.stored = G is not _NO_D
         self.Jbar = None
         self.offset = offset
         # (rc², form, p0, p1, p2) of a one-species compiled coupling, else None
@@ -163,14 +187,18 @@ class ExchangeOperator(SpinOperator):
 
     def compiled(self):
         """The fused step's pieces (see :meth:`SpinOperator.compiled`): on a
-        half pair list, one species, a compiled coupling, no virial."""
+        half pair list, one species, a compiled coupling, the pair vectors G
+        kept and no positions (no virial: the fused step gives none, and
+        operators keeping g are those of systems far above its size)."""
         p = self.pairs
-        if not p.half or self.params is None or self.D is not None:
+        if not p.half or self.params is None or not self.stored or self.pos is not None:
             return None
         if self.Jbar is None or len(self.Jbar) != len(self.J):
             self.Jbar = np.empty(len(self.J))
         # the geometry kernel is threaded above the tiny systems (threads.tiny)
         geometry = _exchange_geometry if threads.tiny() else _exchange_geometry_threaded
+        # as few arrays as the pieces use: each one is unboxed at every call of
+        # the fused step (two more cost the 30-atom chain ~0.7 µs per step)
         return (_exchange_forces, geometry, _exchange_couplings,
                 (threads.count(), p.row, p.j, p.image, p.images, self.J, self.G, self.Jbar,
                  self.offset, self.params))
@@ -191,34 +219,39 @@ class ExchangeOperator(SpinOperator):
         _field(self.pairs, J, W, out)
 
     def add(self, W, want, magnetic_forces, forces, energies):
-        """Add B_i = Σ_j J_ij s_j, the exchange forces and energies for spins W.
+        """Add B_i = Σ_j J_ij s_j, the exchange forces and energies for spins W
+        (and the virial, from the d_ij recomputed at ``pos``).
 
         Returns (energy, virial in Voigt order xx yy zz yz xz xy, eV).
         """
         pairs = self.pairs
-        D = self.D if self.D is not None else _NO_D
-        want_virial = want.virial and D.shape[0] > 0
-        if pairs.half:
-            out = _spin_pass_half_kernel(threads.count(), pairs.row, pairs.j, self.J, self.G,
-                                         D, W, self.offset, magnetic_forces, forces,
-                                         energies, want.magnetic_forces, want.forces,
-                                         want.energy, want.energies, want_virial)
+        if self.pos is None and want.virial:
+            raise ValueError("this exchange operator was prepared without virial=True: "
+                             "it keeps no positions to give the virial from")
+        pos = self.pos if self.pos is not None else _NO_D
+        if self.stored:
+            kernel = _spin_pass_half_kernel if pairs.half else _spin_pass_kernel
         else:
-            out = _spin_pass_kernel(threads.count(), pairs.row, pairs.j, self.J, self.G, D, W,
-                                    self.offset, magnetic_forces, forces, energies,
-                                    want.magnetic_forces, want.forces, want.energy,
-                                    want.energies, want_virial)
-        return out[0], np.array(out[1:])
+            kernel = _spin_pass_half_formed if pairs.half else _spin_pass_formed
+        # the G kernels give no virial: a pass of its own (rare: stress frames)
+        in_pass = want.virial and not self.stored
+        out = kernel(threads.count(), pairs.row, pairs.j, pairs.image, pairs.images, self.J,
+                     self.g, self.G, pos, W, self.offset, magnetic_forces, forces,
+                     energies, want.magnetic_forces, want.forces, want.energy, want.energies,
+                     in_pass)
+        virial = np.array(out[1:])
+        if want.virial and self.stored:
+            virial = np.array(_virial_pass(threads.count(), pairs.row, pairs.j, pairs.image,
+                                           pairs.images, self.G, pos, W, self.offset,
+                                           pairs.half)[1:])
+        return out[0], virial
 
 
 def _field(pairs, J, W, out):
     """out_i += Σ_j J_k W_j over a pair list (full: gather; half: scatter)."""
-    if pairs.half:
-        _spin_pass_half_kernel(threads.count(), pairs.row, pairs.j, J, _NO_D, _NO_D, W, 0.0,
-                               out, _NO_D, _NO_EX, True, False, False, False, False)
-    else:
-        _spin_pass_kernel(threads.count(), pairs.row, pairs.j, J, _NO_D, _NO_D, W, 0.0, out,
-                          _NO_D, _NO_EX, True, False, False, False, False)
+    kernel = _spin_pass_half_kernel if pairs.half else _spin_pass_kernel
+    kernel(threads.count(), pairs.row, pairs.j, pairs.image, pairs.images, J, _NO_EX, _NO_D,
+           _NO_D, W, 0.0, out, _NO_D, _NO_EX, True, False, False, False, False)
 
 
 @nb.njit(cache=True, inline="always")
@@ -330,21 +363,47 @@ class Exchange(SpinTerm):
 
     def prepare(self, positions, pairs, types, bound, *, virial=False, out=None,
                 mean_with=None):
-        """:class:`ExchangeOperator` of ``pairs`` at ``positions``.
+        """:class:`ExchangeOperator` of ``pairs`` at ``positions``, with its own
+        copy of them when it needs them later (in the g form, or for the
+        virial: ``virial=True``).
 
         ``out``: an operator on the same pair list whose arrays are overwritten.
         ``mean_with``: an operator on the same pairs; fills ``Jbar``.
         """
-        table, couplings = bound
+        op = self._operator(pairs, out, len(positions), virial)
+        if op.pos is not None:
+            op.pos = positions = _copy_positions(positions, op.pos)
+        self._fill(op, positions, types, bound, mean_with)
+        return op
+
+    def _operator(self, pairs, out, natoms, virial):
+        """``out`` if it is an operator on ``pairs`` of the same kind (its
+        arrays to be overwritten), else a new one: with the pair vectors G below
+        :data:`PAIR_VECTORS_BELOW` atoms (and a buffer for the positions if
+        ``virial``), else with g and that buffer."""
+        stored = natoms < PAIR_VECTORS_BELOW
+        keep = virial or not stored
+        if (out is not None and out.pairs is pairs and out.stored == stored
+                and (out.pos is not None or not keep)):
+            out.offset = self.energy_offset
+            return out
+        if out is not None:  # its buffers are given up: freed before the new ones
+            out.J = out.g = out.G = out.pos = out.Jbar = None
         n = len(pairs)
-        if out is not None and out.pairs is pairs and (out.D is not None or not virial):
-            op = out
-            op.offset = self.energy_offset
+        if stored:
+            g, G = _NO_EX, np.empty((n, 3))
         else:
-            if out is not None:  # its buffers are given up: freed before the new ones
-                out.J = out.G = out.D = out.Jbar = None
-            op = ExchangeOperator(pairs, np.empty(n), np.empty((n, 3)),
-                                  np.empty((n, 3)) if virial else None, self.energy_offset)
+            g, G = np.empty(n), _NO_D
+        return ExchangeOperator(pairs, np.empty(n), g, G,
+                                np.empty((natoms, 3)) if keep else None, self.energy_offset)
+
+    def _fill(self, op, positions, types, bound, mean_with):
+        """J, G or g (and Jbar) of ``op`` at ``positions``: J_k = J(r_k),
+        G_k = J'(r_k) d_k/r_k or g_k = J'(r_k)/r_k, J̄_k = ½(J_k + J_k of
+        ``mean_with``)."""
+        table, couplings = bound
+        pairs = op.pairs
+        n = len(pairs)
         if mean_with is not None:
             if mean_with.pairs is not pairs:
                 raise ValueError("mean_with must be an operator on the same pair list")
@@ -355,19 +414,20 @@ class Exchange(SpinTerm):
             op.Jbar = None
             other = Jbar = _NO_EX
         if couplings is None:
-            D = op.D if op.D is not None else _NO_D
             if table.shape[0] == 1:
                 # one species: parameters as scalars, no per-pair table lookups
                 op.params = tuple(table[0, 0])
                 _geometry_single(positions, pairs.row, pairs.j, pairs.image, pairs.images,
-                                 *op.params, op.J, op.G, D, op.D is not None, other, Jbar)
+                                 *op.params, op.J, op.g, op.G, other, Jbar)
             else:
                 op.params = None
                 _geometry_kernel(positions, pairs.row, pairs.j, pairs.image, pairs.images,
-                                 types, table, op.J, op.G, D, op.D is not None, other, Jbar)
-            return op
+                                 types, table, op.J, op.g, op.G, other, Jbar)
+            return
         op.params = None
         i = pairs.i
+        # d = (r_j − r_i) + S in separation()'s order of operations: the passes
+        # recompute it from op.pos bit for bit
         d = (positions[pairs.j] - positions[i]) + pairs.shift
         r2 = np.einsum("ij,ij->i", d, d)
         r = np.sqrt(r2)
@@ -378,12 +438,13 @@ class Exchange(SpinTerm):
             sel = (ti == a) & (tj == b) & (r2 < table[a, b, _RC2])
             J[sel], dJ[sel] = _user_values(couplings[a, b], r[sel])
         op.J[:] = J
-        op.G[:] = (dJ / np.where(r > 0.0, r, 1.0))[:, None] * d
-        if op.D is not None:
-            op.D[:] = d
+        g = dJ / np.where(r > 0.0, r, 1.0)
+        if op.stored:
+            np.multiply(g[:, None], d, out=op.G)
+        else:
+            op.g[:] = g
         if op.Jbar is not None:
             np.multiply(0.5, mean_with.J + J, out=op.Jbar)
-        return op
 
     def compute(self, positions, pairs, types, bound, spins, magnetic_forces, forces,
                 energies, want):
@@ -403,6 +464,17 @@ class Exchange(SpinTerm):
 
 _NO_D = np.zeros((0, 3))
 _NO_EX = np.zeros(0)
+
+
+def _copy_positions(positions, buffer):
+    """``positions`` copied into ``buffer`` (an (N, 3) float64 array, reused
+    when its shape fits, else a new one): the operator's own copy, so that
+    buffers the integrators reuse or users edit cannot change an operator
+    after it was prepared."""
+    if buffer is None or buffer.shape != np.shape(positions):
+        buffer = np.empty((len(positions), 3))
+    np.copyto(buffer, positions)
+    return buffer
 
 
 @nb.njit(cache=True, inline="always")
@@ -431,75 +503,103 @@ def _coupling(table, ti, tj, r2):
 
 
 @threaded(always=True)
-def _geometry_kernel(pos, row, nbr, image, images, types, table, J, G, D, want_d,
-                     other, Jbar):
-    """J_k = J(r_ij), G_k = J'(r_ij) d_ij / r_ij (and D_k = d_ij) for every pair k;
-    with ``other`` given, also Jbar_k = ½(other_k + J_k)."""
+def _geometry_kernel(pos, row, nbr, image, images, types, table, J, g, G, other, Jbar):
+    """J_k = J(r_ij) and, into whichever of G and g is not empty,
+    G_k = J'(r_ij) d_ij / r_ij or g_k = J'(r_ij)/r_ij for every pair
+    k = (i → j), with d_ij = (r_j − r_i) + S_k and r_ij² = |d_ij|²
+    (:func:`separation`); with ``other`` given, also Jbar_k = ½(other_k + J_k)."""
     n = len(row) - 1
     want_mean = other.shape[0] > 0
+    stored = G.shape[0] > 0
     for i in nb.prange(n):
         ti = types[i]
         for k in range(row[i], row[i + 1]):
             j = nbr[k]
             tj = types[j]
             dx, dy, dz, r2 = separation(pos, images, i, j, image[k])
-            if want_d:
-                D[k, 0] = dx
-                D[k, 1] = dy
-                D[k, 2] = dz
             if r2 >= table[ti, tj, _RC2]:
                 Jk = 0.0
-                g = 0.0
+                gk = 0.0
             else:
-                Jk, g = _coupling(table, ti, tj, r2)
+                Jk, gk = _coupling(table, ti, tj, r2)
             J[k] = Jk
-            G[k, 0] = g * dx
-            G[k, 1] = g * dy
-            G[k, 2] = g * dz
+            if stored:
+                G[k, 0] = gk * dx
+                G[k, 1] = gk * dy
+                G[k, 2] = gk * dz
+            else:
+                g[k] = gk
             if want_mean:
                 Jbar[k] = 0.5 * (other[k] + Jk)
 
 
 @threaded(always=True)
-def _geometry_single(pos, row, nbr, image, images, rc2, form, p0, p1, p2, J, G, D, want_d,
-                     other, Jbar):
+def _geometry_single(pos, row, nbr, image, images, rc2, form, p0, p1, p2, J, g, G, other,
+                     Jbar):
     """:func:`_geometry_kernel` for one species (one coupling)."""
     n = len(row) - 1
     want_mean = other.shape[0] > 0
+    stored = G.shape[0] > 0
     for i in nb.prange(n):
         for k in range(row[i], row[i + 1]):
             dx, dy, dz, r2 = separation(pos, images, i, nbr[k], image[k])
-            if want_d:
-                D[k, 0] = dx
-                D[k, 1] = dy
-                D[k, 2] = dz
             if r2 >= rc2:
                 Jk = 0.0
-                g = 0.0
+                gk = 0.0
             else:
-                Jk, g = _coupling_form(form, p0, p1, p2, r2)
+                Jk, gk = _coupling_form(form, p0, p1, p2, r2)
             J[k] = Jk
-            G[k, 0] = g * dx
-            G[k, 1] = g * dy
-            G[k, 2] = g * dz
+            if stored:
+                G[k, 0] = gk * dx
+                G[k, 1] = gk * dy
+                G[k, 2] = gk * dz
+            else:
+                g[k] = gk
             if want_mean:
                 Jbar[k] = 0.5 * (other[k] + Jk)
 
 
-@threaded()
-def _spin_pass_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
-                      want_b, want_f, want_energy, want_energies, want_virial):
-    """One pass over the exchange pairs for spins s (full list, gather into i):
+#: Read by the pass kernels below as a compile-time constant: False in the
+#: kernels of operators keeping G (they read it), True in their twins for
+#: operators keeping g (:func:`_formed_twin`: they form G = g d per pair). Two
+#: compiled kernels, not a branch per pair: the G kernels' force loop is then
+#: the one that read G before g existed, as fast.
+_FORMED = False
 
-    B_i += Σ_j J_ij s_j,   F_i += −Σ_j (s_i·s_j − c) G_ij,
-    e_i += −½ Σ_j J_ij (s_i·s_j − c),   W += −½ Σ_ij (s_i·s_j − c) G_ij ⊗ d_ij.
 
-    Rows in ``nthreads`` fixed chunks, each summing its own energy and virial:
-    the sums do not depend on how many threads run the chunks.
+def _formed_twin(fn):
+    """``fn`` (a pass kernel's Python source) with ``_FORMED = True``, under a
+    name of its own (numba's disk cache keeps the two apart)."""
+    glob = dict(fn.__globals__, _FORMED=True)
+    twin = types.FunctionType(fn.__code__, glob, fn.__name__ + "_formed", fn.__defaults__,
+                              fn.__closure__)
+    twin.__qualname__ = fn.__qualname__ + "_formed"
+    twin.__module__ = fn.__module__
+    twin.__doc__ = fn.__doc__
+    return twin
+
+
+def _spin_pass(nthreads, row, nbr, image, images, J, g, G, pos, s, c, B, F, energies,
+               want_b, want_f, want_energy, want_energies, want_virial):
+    """One pass over the exchange pairs for spins s (full list, gather into i),
+    w = s_i·s_j − c, G_ij = J'(r_ij) d_ij/r_ij read from ``G`` (or, in the
+    :func:`_formed_twin`, formed as g_ij d_ij), d_ij = (r_j − r_i) + S_ij
+    recomputed from the positions ``pos`` the operator was prepared at:
+
+    B_i += Σ_j J_ij s_j,   F_i += −Σ_j w G_ij,
+    e_i += −½ Σ_j J_ij w,   W += −½ Σ_ij w G_ij ⊗ d_ij.
+
+    (G_ij = g·d is the product the geometry pass stores in G, scaled by w after:
+    the same bits either way.) The G kernel reads no positions and gives no
+    virial (``want_virial`` False; :func:`_virial_pass` adds it): its loop
+    holds nothing it does not need. Rows in ``nthreads`` fixed chunks, each
+    summing its own energy and virial: the sums do not depend on how many
+    threads run the chunks.
     """
     bounds = balanced_chunks(row, nthreads)
     acc = np.zeros((nthreads, 7))
     need_dot = want_f or want_energy or want_energies or want_virial
+    need_d = _FORMED
     for t in nb.prange(nthreads):
         e = 0.0
         vxx = 0.0
@@ -512,6 +612,12 @@ def _spin_pass_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
             sx = s[i, 0]
             sy = s[i, 1]
             sz = s[i, 2]
+            if need_d:
+                xi = pos[i, 0]
+                yi = pos[i, 1]
+                zi = pos[i, 2]
+            else:
+                xi = yi = zi = 0.0
             bx = 0.0
             by = 0.0
             bz = 0.0
@@ -530,18 +636,35 @@ def _spin_pass_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
                 bz += Jk * tz
                 if need_dot:
                     w = sx * tx + sy * ty + sz * tz - c
-                    fx -= w * G[k, 0]
-                    fy -= w * G[k, 1]
-                    fz -= w * G[k, 2]
+                    if need_d:
+                        # d = (r_j − r_i) + S as separation() forms it, r_i loaded once
+                        m = image[k]
+                        dx = (pos[j, 0] - xi) + images[m, 0]
+                        dy = (pos[j, 1] - yi) + images[m, 1]
+                        dz = (pos[j, 2] - zi) + images[m, 2]
+                    else:
+                        dx = dy = dz = 0.0
+                    if _FORMED:
+                        gk = g[k]
+                        Gx = gk * dx
+                        Gy = gk * dy
+                        Gz = gk * dz
+                    else:
+                        Gx = G[k, 0]
+                        Gy = G[k, 1]
+                        Gz = G[k, 2]
+                    fx -= w * Gx
+                    fy -= w * Gy
+                    fz -= w * Gz
                     ei -= 0.5 * Jk * w
                     if want_virial:
                         h = -0.5 * w
-                        vxx += h * G[k, 0] * D[k, 0]
-                        vyy += h * G[k, 1] * D[k, 1]
-                        vzz += h * G[k, 2] * D[k, 2]
-                        vyz += h * G[k, 1] * D[k, 2]
-                        vxz += h * G[k, 0] * D[k, 2]
-                        vxy += h * G[k, 0] * D[k, 1]
+                        vxx += h * Gx * dx
+                        vyy += h * Gy * dy
+                        vzz += h * Gz * dz
+                        vyz += h * Gy * dz
+                        vxz += h * Gx * dz
+                        vxy += h * Gx * dy
             if want_b:
                 B[i, 0] += bx
                 B[i, 1] += by
@@ -565,12 +688,12 @@ def _spin_pass_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
     return out[0], out[1], out[2], out[3], out[4], out[5], out[6]
 
 
-@threaded(reduce_threads=lambda: reduce_threads_serial)
-def _spin_pass_half_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
-                           want_b, want_f, want_energy, want_energies, want_virial):
-    """:func:`_spin_pass_kernel` over a half list (each pair once), scattering
-    into per-thread buffers: B_i += J s_j, B_j += J s_i, F_i −= w G, F_j += w G,
-    e_i, e_j −= ½ J w, W −= w G ⊗ d."""
+def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, c, B, F, energies,
+                    want_b, want_f, want_energy, want_energies, want_virial):
+    """:func:`_spin_pass` over a half list (each pair once), scattering into
+    per-thread buffers, w = s_i·s_j − c, G read (or formed as g d in the
+    :func:`_formed_twin`), d recomputed from ``pos``: B_i += J s_j,
+    B_j += J s_i, F_i −= w G, F_j += w G, e_i, e_j −= ½ J w, W −= w G ⊗ d."""
     n = len(row) - 1
     bounds = balanced_chunks(row, nthreads)
     bbuf = np.zeros((nthreads, n if want_b else 0, 3))
@@ -578,6 +701,7 @@ def _spin_pass_half_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
     ebuf = np.zeros((nthreads, n if want_energies else 0, 1))
     acc = np.zeros((nthreads, 7))
     need_dot = want_f or want_energy or want_energies or want_virial
+    need_d = _FORMED
     for t in nb.prange(nthreads):
         e = 0.0
         vxx = 0.0
@@ -590,6 +714,12 @@ def _spin_pass_half_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
             sx = s[i, 0]
             sy = s[i, 1]
             sz = s[i, 2]
+            if need_d:
+                xi = pos[i, 0]
+                yi = pos[i, 1]
+                zi = pos[i, 2]
+            else:
+                xi = yi = zi = 0.0
             bx = 0.0
             by = 0.0
             bz = 0.0
@@ -615,9 +745,24 @@ def _spin_pass_half_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
                     ei -= Jk * w
                     if want_energies:
                         ebuf[t, j, 0] -= 0.5 * Jk * w
-                    gx = w * G[k, 0]
-                    gy = w * G[k, 1]
-                    gz = w * G[k, 2]
+                    if need_d:
+                        # d = (r_j − r_i) + S as separation() forms it, r_i loaded once
+                        m = image[k]
+                        dx = (pos[j, 0] - xi) + images[m, 0]
+                        dy = (pos[j, 1] - yi) + images[m, 1]
+                        dz = (pos[j, 2] - zi) + images[m, 2]
+                    else:
+                        dx = dy = dz = 0.0
+                    if _FORMED:
+                        gk = g[k]
+                        # w (g d): the product G = g d of the geometry pass first
+                        gx = w * (gk * dx)
+                        gy = w * (gk * dy)
+                        gz = w * (gk * dz)
+                    else:
+                        gx = w * G[k, 0]
+                        gy = w * G[k, 1]
+                        gz = w * G[k, 2]
                     if want_f:
                         fx -= gx
                         fy -= gy
@@ -626,12 +771,12 @@ def _spin_pass_half_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
                         fbuf[t, j, 1] += gy
                         fbuf[t, j, 2] += gz
                     if want_virial:
-                        vxx -= gx * D[k, 0]
-                        vyy -= gy * D[k, 1]
-                        vzz -= gz * D[k, 2]
-                        vyz -= gy * D[k, 2]
-                        vxz -= gx * D[k, 2]
-                        vxy -= gx * D[k, 1]
+                        vxx -= gx * dx
+                        vyy -= gy * dy
+                        vzz -= gz * dz
+                        vyz -= gy * dz
+                        vxz -= gx * dz
+                        vxy -= gx * dy
             if want_b:
                 bbuf[t, i, 0] += bx
                 bbuf[t, i, 1] += by
@@ -654,6 +799,63 @@ def _spin_pass_half_kernel(nthreads, row, nbr, J, G, D, s, c, B, F, energies,
     reduce_threads(bbuf, B)
     reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
     return sum_over_threads(acc)
+
+
+@threaded()
+def _virial_pass(nthreads, row, nbr, image, images, G, pos, s, c, half):
+    """The exchange virial for spins s from stored G = J'(r) d/r and d
+    recomputed from ``pos``, w = s_i·s_j − c: W = −Σ_k w G_k ⊗ d_k over a half
+    list, −½ Σ_k w G_k ⊗ d_k over a full one; Voigt order. The rows, chunks and
+    per-pair products of the passes above in the same order (the same sums)."""
+    bounds = balanced_chunks(row, nthreads)
+    acc = np.zeros((nthreads, 7))
+    for t in nb.prange(nthreads):
+        vxx = 0.0
+        vyy = 0.0
+        vzz = 0.0
+        vyz = 0.0
+        vxz = 0.0
+        vxy = 0.0
+        for i in range(bounds[t], bounds[t + 1]):
+            sx = s[i, 0]
+            sy = s[i, 1]
+            sz = s[i, 2]
+            for k in range(row[i], row[i + 1]):
+                j = nbr[k]
+                w = sx * s[j, 0] + sy * s[j, 1] + sz * s[j, 2] - c
+                dx, dy, dz, r2 = separation(pos, images, i, j, image[k])
+                if half:
+                    gx = w * G[k, 0]
+                    gy = w * G[k, 1]
+                    gz = w * G[k, 2]
+                    vxx -= gx * dx
+                    vyy -= gy * dy
+                    vzz -= gz * dz
+                    vyz -= gy * dz
+                    vxz -= gx * dz
+                    vxy -= gx * dy
+                else:
+                    h = -0.5 * w
+                    vxx += h * G[k, 0] * dx
+                    vyy += h * G[k, 1] * dy
+                    vzz += h * G[k, 2] * dz
+                    vyz += h * G[k, 1] * dz
+                    vxz += h * G[k, 0] * dz
+                    vxy += h * G[k, 0] * dy
+        acc[t, 1] = vxx
+        acc[t, 2] = vyy
+        acc[t, 3] = vzz
+        acc[t, 4] = vyz
+        acc[t, 5] = vxz
+        acc[t, 6] = vxy
+    return sum_over_threads(acc)
+
+
+_spin_pass_kernel = threaded()(_spin_pass)
+_spin_pass_formed = threaded()(_formed_twin(_spin_pass))
+_spin_pass_half_kernel = threaded(reduce_threads=lambda: reduce_threads_serial)(_spin_pass_half)
+_spin_pass_half_formed = threaded(reduce_threads=lambda: reduce_threads_serial)(
+    _formed_twin(_spin_pass_half))
 
 
 @threaded(always=True, reduce_threads=lambda: reduce_threads_serial)
@@ -763,10 +965,11 @@ _spin_pass_half_serial = _spin_pass_half_kernel.serial
 @nb.njit(cache=True)
 def _exchange_forces(W, data, F):
     """F += the exchange forces at spins W (:meth:`ExchangeOperator.add`, forces
-    only, serial twin): a piece of the fused step."""
+    only, serial twin, G kept): a piece of the fused step."""
     nthreads, row, nbr, image, images, J, G, Jbar, offset, params = data
-    _spin_pass_half_serial(nthreads, row, nbr, J, G, np.zeros((0, 3)), W, offset,
-                           np.zeros((0, 3)), F, np.zeros(0), False, True, False, False, False)
+    _spin_pass_half_serial(nthreads, row, nbr, image, images, J, np.zeros(0), G,
+                           np.zeros((0, 3)), W, offset, np.zeros((0, 3)), F, np.zeros(0),
+                           False, True, False, False, False)
 
 
 @nb.njit(cache=True)
@@ -776,8 +979,8 @@ def _exchange_geometry(positions, data, other):
     serial twin): a piece of the fused step."""
     nthreads, row, nbr, image, images, J, G, Jbar, offset, params = data
     rc2, form, p0, p1, p2 = params
-    _geometry_single_serial(positions, row, nbr, image, images, rc2, form, p0, p1, p2, J, G,
-                            np.zeros((0, 3)), False, other[5], Jbar)
+    _geometry_single_serial(positions, row, nbr, image, images, rc2, form, p0, p1, p2, J,
+                            np.zeros(0), G, other[5], Jbar)
 
 
 _geometry_single_parallel = _geometry_single.parallel
@@ -791,7 +994,7 @@ def _exchange_geometry_threaded(positions, data, other):
     nthreads, row, nbr, image, images, J, G, Jbar, offset, params = data
     rc2, form, p0, p1, p2 = params
     _geometry_single_parallel(positions, row, nbr, image, images, rc2, form, p0, p1, p2, J,
-                              G, np.zeros((0, 3)), False, other[5], Jbar)
+                              np.zeros(0), G, other[5], Jbar)
 
 
 @nb.njit(cache=True)
