@@ -677,9 +677,8 @@ def _last(history, order=PREDICTOR_DEPTH):
     the newest (coefficient 0 there): one tuple type, one compiled kernel.
     Beyond ``order`` + 1 the newest again (a zero coefficient times it adds
     the same +0.0, and a large system then reads only the arrays it uses)."""
-    h0 = history[-1]
-    n = min(len(history), order + 1)
-    return tuple(history[-1 - k] if n > k else h0 for k in range(PREDICTOR_DEPTH))
+    newest = list(reversed(history))[:order + 1]  # C loops: this runs every step
+    return tuple(newest + newest[:1] * (PREDICTOR_DEPTH - len(newest)))
 
 
 def extrapolate(history, order, base):
