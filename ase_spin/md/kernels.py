@@ -764,10 +764,9 @@ def best_extrapolation_order(history, W, rows, base=None):
     picked = np.arange(len(rows))
     D = W[rows] if base is None else W[rows] - base[rows]
     n = min(len(history), PREDICTOR_DEPTH)
-    # each increment sampled once; the padding (as _last's) repeats the newest
-    taken = [history[-1 - k][rows] for k in range(n)]
-    taken += [taken[0]] * (PREDICTOR_DEPTH - n)
-    return _best_order(n, *taken, D, picked)
+    # each increment sampled once; _last's padding repeats the newest
+    taken = [h[rows] for h in _last(history)[:n]]
+    return _best_order(n, *taken, *taken[:1] * (PREDICTOR_DEPTH - n), D, picked)
 
 
 @nb.njit(cache=True)
