@@ -360,7 +360,7 @@ class CollectivePRK(SpinLatticeDynamics):
                 s, operators, W, h, stage, mean, scale, stilde, carry, tol, "jacobi",
                 min(self.max_iter, _AUTO_JACOBI_SWEEPS))
             if status != kernels.NOT_CONVERGED and not (its > 2 and theta > _AUTO_SWITCH):
-                st.theta[stage] = theta if theta < 1.0 else st.theta[stage]
+                st.theta[stage] = theta if 0.0 <= theta < 1.0 else st.theta[stage]
                 if which == 1:
                     W, st.Wnext = st.Wnext, W
                 return W, stilde, its, moved, carry
@@ -380,7 +380,7 @@ class CollectivePRK(SpinLatticeDynamics):
         if solver is not None:
             its, delta, status, which, theta, moved = self._run_solver(
                 s, operators, W, h, stage, mean, scale, stilde, carry, tol, solver, self.max_iter)
-        st.theta[stage] = theta if theta < 1.0 else st.theta[stage]
+        st.theta[stage] = theta if 0.0 <= theta < 1.0 else st.theta[stage]
         if which == 1:
             W, st.Wnext = st.Wnext, W
         if status == kernels.NOT_CONVERGED:

@@ -114,7 +114,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
             min(1.0, 2.0 * theta), carry_s, carry, memory, local)
         if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch):
             return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle)
-        if measured < 1.0:
+        if 0.0 <= measured < 1.0:  # observed (−1: none was)
             theta = measured
         if which == 1:
             W, Wnext = Wnext, W

@@ -344,7 +344,7 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     two sweeps have been made), is at most ``tol``; or when the change has
     stopped falling below ``floor`` (round-off reached). Returns (iterations,
     last max|ΔW|, status, index of the buffer holding the result: 0 = W,
-    1 = Wnext, contraction θ observed, or ``theta0`` if none was, max|ΔW| of the
+    1 = Wnext, contraction θ observed, or −1 if none was, max|ΔW| of the
     first sweep: how far the starting guess was from the result).
     """
     n = len(row) - 1
@@ -360,7 +360,7 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     which = 1  # the buffer nxt is
     previous = np.inf
     theta = theta0
-    measured = theta0
+    measured = -1.0
     delta = 0.0
     first = 0.0
     for it in range(1, max_iter + 1):
@@ -423,7 +423,7 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
     which = 1
     previous = np.inf
     theta = theta0
-    measured = theta0
+    measured = -1.0
     delta = 0.0
     first = 0.0
     for it in range(1, max_iter + 1):
@@ -531,7 +531,8 @@ def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, 
     nxt = Wnext
     which = 1
     previous = np.inf
-    theta = measured = theta0
+    theta = theta0
+    measured = -1.0
     delta = first = 0.0
     for it in range(1, max_iter + 1):
         B[:] = 0.0
