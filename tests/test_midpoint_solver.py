@@ -214,6 +214,26 @@ def test_predictor_leaves_one_geometry_and_few_sweeps_per_step():
     assert np.mean(sweeps[1:]) <= 3.0
 
 
+@pytest.mark.parametrize("fused", [True, False])
+def test_auto_solver_keeps_jacobi_while_it_contracts_fast(fused, monkeypatch):
+    """fcc Co at 0.1 fs, where a Jacobi sweep contracts by ~0.03: "auto" keeps
+    Jacobi over a long run. Most solves take two sweeps from a good prediction
+    and observe no contraction (every change below 1e3 tol); the estimate kept
+    must be the last one observed, not the doubled safety margin of a solve
+    that observed none (which, stored back, doubled every step until a
+    three-sweep solve saw it above 0.4 and switched to Anderson for good:
+    after ~40 steps, before the fix). Both the general and the fused
+    small-system step."""
+    from ase_spin.md import fused as fused_step
+
+    if not fused:
+        monkeypatch.setattr(fused_step, "collective_step", lambda *a: None)
+    dyn = CollectivePRK(fcc_cobalt(2), 0.1 * units.fs)
+    dyn.run(150)
+    st = dyn._state
+    assert st.modes == {}
+    assert 0.0 < st.theta[0] < 0.1
+
 def _run(n, dt_fs, order, steps, heavy=False, **kw):
     atoms = fcc_cobalt(n)
     if heavy:  # q̃ hardly depends on W: the outer iteration settles after one solve
