@@ -67,6 +67,10 @@ def _exercise(atoms, dyn):
             dyn.run(2)
         finally:
             fused.FUSE_AFTER_STEPS = saved
+        # and a step that ends in a frame (a trajectory, any observer but the
+        # log line): it asks the spin operators for the energy and the virial
+        dyn.attach(lambda: None, interval=1)
+        dyn.run(1)
 
 
 def _builtin(task):
