@@ -248,6 +248,12 @@ WARMUP = 12
 #: duration before the next probe: probing costs at most ~1/PROBE_BUDGET.
 PROBE_BUDGET = 20.0
 
+#: A step more than this many times slower than the median of the last steps
+#: with its thread count is not timed unless the next one is slow as well: one
+#: such step is the operating system's (a worker thread descheduled for a time
+#: slice holds every barrier of the step), not the thread count's.
+OUTLIER = 1.5
+
 
 class AdaptiveThreads:
     """The number of threads for the steps of a run, chosen by timing them.
@@ -255,8 +261,12 @@ class AdaptiveThreads:
     ``threads="auto"`` (the default; or the environment variable
     ``ASE_SPIN_THREADS``): every step runs with all configured threads or with
     one, whichever made the last measured step faster (the first
-    :data:`WARMUP` steps are not timed). The current choice is
-    timed at every step, so a core taken by another process shows at once; the
+    :data:`WARMUP` steps are not timed, nor a single step :data:`OUTLIER`
+    times slower than the last ones with its count: on a shared machine a
+    descheduled worker thread makes an occasional threaded step several times
+    slower, which would send the run to one thread until the next probe). The
+    current choice is timed at every step, so a core taken by another process
+    shows after two steps; the
     other choice is timed again once per ``probe`` seconds of wall time (the
     interval doubles, up to 64 s, while it keeps losing, and is at least
     :data:`PROBE_BUDGET` times the losing step's own time). A machine busy
@@ -280,6 +290,8 @@ class AdaptiveThreads:
         self._probing = False
         self._order = None  # which count is timed first: decided at the first step
         self._sample = None  # cpu_snapshot() at the last look at the machine
+        self._recent = {}  # threads -> the last step times (s), outliers included
+        self._slow = {}  # threads -> whether its last step was an outlier
 
     @property
     def setting(self):
@@ -346,6 +358,14 @@ class AdaptiveThreads:
         self.steps += 1
         if self.steps <= WARMUP:  # compilation, the predictor's history filling
             return
+        recent = self._recent.setdefault(n, [])
+        typical = sorted(recent)[len(recent) // 2] if len(recent) >= 3 else None
+        recent.append(elapsed)
+        del recent[:-5]
+        if typical is not None and elapsed > OUTLIER * typical and not self._slow.get(n):
+            self._slow[n] = True  # one slow step: not timed (see OUTLIER)
+            return
+        self._slow[n] = False
         before = self._best()
         self.time[n] = elapsed
         best = self._best()

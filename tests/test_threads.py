@@ -36,7 +36,9 @@ def test_trajectory_is_bitwise_the_same_with_one_thread_or_all(cls):
 def test_adaptive_choice_follows_the_faster_setting(monkeypatch):
     """With made-up step times on an idle machine: after the untimed warm-up
     (all threads), both settings are timed, the faster is kept, the other
-    re-probed, and a slowdown of the current choice switches at once."""
+    re-probed; a single slow step of the current choice (the operating
+    system's: threads.OUTLIER) changes nothing, a slowdown that stays
+    switches at its second step."""
     monkeypatch.setattr(threads, "cores_taken_by_others", lambda: 0.0)
     control = AdaptiveThreads("auto", probe=1e9)
     control.most = 2
@@ -54,9 +56,14 @@ def test_adaptive_choice_follows_the_faster_setting(monkeypatch):
     assert chosen[warm:warm + 2] == [2, 1]            # each timed once
     assert chosen[warm + 2] == 2 and probes[warm + 2]  # the first probe, then none for 1e9 s
     assert chosen[warm + 3:] == [1, 1, 1] and not any(probes[warm + 3:])
-    times[1] = 10.0                          # a core got busy: one slow step switches
+    control._record(control._choose(), 10.0)  # one slow step alone: not timed
+    assert control._choose() == 1 and control.time[1] == 1.0
+    control._record(control._choose(), 1.0)
+    times[1] = 10.0                           # a core got busy: slow steps from now on
     control._record(control._choose(), times[1])
-    assert control._choose() == 2
+    assert control._choose() == 1             # the first could be the OS's
+    control._record(control._choose(), times[1])
+    assert control._choose() == 2             # the second switches
 
 
 def test_busy_machine_starts_with_one_thread(monkeypatch):
