@@ -658,7 +658,22 @@ def balanced_chunks(row, nchunks):
 
 @nb.njit(cache=True, parallel=prange_only())
 def reduce_threads(buf, out):
-    """out[i] += Σ_t buf[t, i]: sum per-thread buffers (t, n, k) into (n, k)."""
+    """out[i] += Σ_t buf[t, i]: sum per-thread buffers (t, n, k) into (n, k),
+    t in order. Three columns (forces, fields) spelled out: a loop over a
+    run-time k of 3 cost the serial force pass ~7 % at N = 4 000."""
+    if buf.shape[2] == 3:
+        for i in nb.prange(buf.shape[1]):
+            x = out[i, 0]
+            y = out[i, 1]
+            z = out[i, 2]
+            for t in range(buf.shape[0]):
+                x += buf[t, i, 0]
+                y += buf[t, i, 1]
+                z += buf[t, i, 2]
+            out[i, 0] = x
+            out[i, 1] = y
+            out[i, 2] = z
+        return
     for i in nb.prange(buf.shape[1]):
         for t in range(buf.shape[0]):
             for c in range(buf.shape[2]):
