@@ -260,7 +260,8 @@ class AdaptiveThreads:
 
     ``threads="auto"`` (the default; or the environment variable
     ``ASE_SPIN_THREADS``): every step runs with all configured threads or with
-    one, whichever made the last measured step faster (the first
+    one, whichever was faster in its last measured steps (the median of the
+    last three in a row with that count, or the one step of a probe; the first
     :data:`WARMUP` steps are not timed, nor a single step :data:`OUTLIER`
     times slower than the last ones with its count: on a shared machine a
     descheduled worker thread makes an occasional threaded step several times
@@ -292,6 +293,8 @@ class AdaptiveThreads:
         self._sample = None  # cpu_snapshot() at the last look at the machine
         self._recent = {}  # threads -> the last step times (s), outliers included
         self._slow = {}  # threads -> whether its last step was an outlier
+        self._stretch = []  # the last (up to 3) step times since the count last changed
+        self._stretch_n = None
 
     @property
     def setting(self):
@@ -362,12 +365,18 @@ class AdaptiveThreads:
         typical = sorted(recent)[len(recent) // 2] if len(recent) >= 3 else None
         recent.append(elapsed)
         del recent[:-5]
+        if n != self._stretch_n:
+            self._stretch_n, self._stretch = n, []
+        self._stretch.append(elapsed)
+        del self._stretch[:-3]
         if typical is not None and elapsed > OUTLIER * typical and not self._slow.get(n):
             self._slow[n] = True  # one slow step: not timed (see OUTLIER)
             return
         self._slow[n] = False
         before = self._best()
-        self.time[n] = elapsed
+        # the median of the last three steps of this stretch (a probe: its one step),
+        # so that one noisy step of the current choice does not lose to a probe
+        self.time[n] = sorted(self._stretch)[len(self._stretch) // 2]
         best = self._best()
         if best is None or n == best:
             if self._probing and before is not None:  # a probe that won: probe often again
