@@ -234,6 +234,7 @@ def test_auto_solver_keeps_jacobi_while_it_contracts_fast(fused, monkeypatch):
     assert st.modes == {}
     assert 0.0 < st.theta[0] < 0.1
 
+
 def _run(n, dt_fs, order, steps, heavy=False, **kw):
     atoms = fcc_cobalt(n)
     if heavy:  # q̃ hardly depends on W: the outer iteration settles after one solve

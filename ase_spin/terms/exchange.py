@@ -572,8 +572,8 @@ _FORMED = False
 #: kernel for any request (the flags are arguments), or the flags (want_b,
 #: want_f, want_energy, want_energies, want_virial) themselves in its twins for
 #: the two requests of every step — forces alone (the integrators' force
-#: passes) and fields alone — whose loops then hold no branch on them (the
-#: forces-only pass 75 against 110 µs at N = 4 000, one thread).
+#: passes) and fields alone — whose loops then hold no branch on them
+#: (docs/benchmarks.md, "The exchange force pass").
 _WANT = None
 
 
@@ -996,8 +996,8 @@ def _exchange_forces(W, data, F):
     only, serial twin, G kept): a piece of the fused step."""
     nthreads, row, nbr, image, images, J, G, Jbar, offset, params = data
     _forces_pass_serial(nthreads, row, nbr, image, images, J, np.zeros(0), G,
-                           np.zeros((0, 3)), W, offset, np.zeros((0, 3)), F, np.zeros(0),
-                           False, True, False, False, False)
+                        np.zeros((0, 3)), W, offset, np.zeros((0, 3)), F, np.zeros(0),
+                        False, True, False, False, False)
 
 
 @nb.njit(cache=True)
