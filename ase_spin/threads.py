@@ -281,7 +281,7 @@ class AdaptiveThreads:
     def __init__(self, threads=None, probe=1.0):
         self.fixed = _threads_setting(threads)
         self.most = chunks()
-        self.time = {}  # threads -> last measured step time (s)
+        self.time = {}  # threads -> its step time as judged (s): see _record
         self.seen = {}  # threads -> steps run
         self.steps = 0
         self.choice = self.fixed or self.most
