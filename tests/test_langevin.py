@@ -597,3 +597,50 @@ def test_noisy_default_tolerance_changes_nothing_a_run_can_show():
     ea, eb = np.array(econs[id(loose)]), np.array(econs[id(tight)])
     assert np.abs(ea - eb).max() < 1e-5 * np.ptp(eb), (np.abs(ea - eb).max(), np.ptp(eb))
     assert loose.total_iterations < tight.total_iterations
+
+
+@pytest.mark.parametrize("nthreads_kernel", ["parallel", "serial"])
+def test_bath_kernels_equal_the_spin_by_spin_formulas(nthreads_kernel):
+    """bath_block and damp_from (a branch-free SIMD loop plus a one-by-one loop
+    for large damping angles, zero fields and non-magnetic rows) give the same
+    bits as the per-spin flows _damped and _diffused applied one spin at a time."""
+    from ase_spin.md import langevin as lg
+    from ase_spin.md.gaussian import normal
+    rng = np.random.default_rng(3)
+    n = 600  # three blocks, the last one partial
+    s = rng.normal(size=(n, 3))
+    s /= np.linalg.norm(s, axis=1)[:, None]
+    s[4] = [1.0, 0.0, 0.0]  # both tangent bases of _diffused
+    s[5] = [0.0, 1.0, 0.0]
+    B = rng.normal(size=(n, 3))
+    B[7] = 0.0  # no field: no damping
+    k1 = rng.uniform(0.0, 0.02, n)
+    k1[[9, 300]] = 0.5  # large angles: the expm1 form
+    k1[10] = 0.0
+    k2 = rng.uniform(0.0, 0.02, n)
+    k2[[11, 599]] = 2.0
+    sigma = rng.uniform(0.0, 0.1, n)
+    sigma[12] = 0.0
+    magnetic = np.ones(n, dtype=bool)
+    magnetic[13] = False
+    s[13] = 0.0
+    key = np.uint64(12345)
+    bath = getattr(lg.bath_block, nthreads_kernel)
+    damp = getattr(lg.damp_from, nthreads_kernel)
+    got, before = s.copy(), np.full_like(s, 7.0)
+    bath(got, before, B, k1, sigma, key, k2, magnetic)
+    damped = np.full_like(s, 7.0)
+    damp(s, B, k1, magnetic, damped)
+    want, want_before, want_damped = s.copy(), np.full_like(s, 7.0), np.full_like(s, 7.0)
+    for i in np.flatnonzero(magnetic):
+        bx, by, bz, b = lg._direction(B, i)
+        x, y, z = lg._damped(*s[i], bx, by, bz, k1[i] * b)
+        x, y, z = lg._diffused(x, y, z, sigma[i], normal(key, 2 * i), normal(key, 2 * i + 1))
+        want_before[i] = x, y, z
+        want[i] = lg._damped(x, y, z, bx, by, bz, k2[i] * b)
+        want_damped[i] = lg._damped(*s[i], bx, by, bz, k1[i] * b)
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(before, want_before)
+    np.testing.assert_array_equal(damped, want_damped)
+    assert np.all(got[13] == 0.0) and np.all(before[13] == 7.0)
+    np.testing.assert_allclose(np.linalg.norm(got[magnetic], axis=1), 1.0, atol=4e-16)
