@@ -509,6 +509,63 @@ def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, l
     return change.max()
 
 
+@threaded()
+def linear_field_and_form(nthreads, row, nbr, c, half, u, d, out):
+    """One pass over the pairs of a term in the ``linear_pairs`` form (B = C x,
+    B_i = Σ_j c_k x_j over k = (i → j), C symmetric): out += C u, and returns
+    the quadratic form d·C d = Σ_i Σ_j c_k d_i·d_j (a half list holds each pair
+    once: scattered into row j too, counted twice in the form; per-thread
+    buffers and sums added in thread order)."""
+    n = len(row) - 1
+    bounds = balanced_chunks(row, nthreads)
+    buf = np.zeros((nthreads, n if half else 0, 3))
+    form = np.zeros(nthreads)
+    twice = 2.0 if half else 1.0
+    for t in nb.prange(nthreads):
+        acc = 0.0
+        for i in range(bounds[t], bounds[t + 1]):
+            ux = u[i, 0]
+            uy = u[i, 1]
+            uz = u[i, 2]
+            dx = d[i, 0]
+            dy = d[i, 1]
+            dz = d[i, 2]
+            fx = fy = fz = 0.0
+            e = 0.0
+            for k in range(row[i], row[i + 1]):
+                j = nbr[k]
+                ck = c[k]
+                fx += ck * u[j, 0]
+                fy += ck * u[j, 1]
+                fz += ck * u[j, 2]
+                e += ck * (dx * d[j, 0] + dy * d[j, 1] + dz * d[j, 2])
+                if half:
+                    buf[t, j, 0] += ck * ux
+                    buf[t, j, 1] += ck * uy
+                    buf[t, j, 2] += ck * uz
+            acc += twice * e
+            if half:
+                buf[t, i, 0] += fx
+                buf[t, i, 1] += fy
+                buf[t, i, 2] += fz
+            else:
+                out[i, 0] += fx
+                out[i, 1] += fy
+                out[i, 2] += fz
+        form[t] = acc
+    if half:
+        for t in nb.prange(nthreads):
+            for i in range((n * t) // nthreads, (n * (t + 1)) // nthreads):
+                for v in range(nthreads):
+                    out[i, 0] += buf[v, i, 0]
+                    out[i, 1] += buf[v, i, 1]
+                    out[i, 2] += buf[v, i, 2]
+    total = 0.0
+    for t in range(nthreads):
+        total += form[t]
+    return total
+
+
 def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, max_iter,
                              theta0, carry, carry_out, mean, memory=MEMORY, local=True):
     r""":func:`midpoint_solve` for any spin terms: B̄_i = Σ_terms B̄_i(W), each

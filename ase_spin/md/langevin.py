@@ -8,6 +8,7 @@ it (an O–PRK–O splitting, docs/thermostats.md).
 from __future__ import annotations
 
 from collections import deque
+from typing import NamedTuple, Optional
 
 import numba as nb
 import numpy as np
@@ -18,8 +19,9 @@ from ..validate import flag, real_scalar
 from . import kernels
 from .collective import CollectivePRK
 from .gaussian import new_key, normal
-from .kernels import BLOCK, _extrapolated
+from .kernels import BLOCK, local_midpoint
 from .logger import SpinMDLogger
+from .. import threads
 from ..threads import threaded
 
 __all__ = ["Langevin", "relax_spins", "LangevinLogger"]
@@ -28,6 +30,20 @@ _EB = Want(energy=True, magnetic_forces=True)
 _B = Want(magnetic_forces=True)
 _NO_FORCES = np.zeros((0, 3))
 _NO_ENERGIES = np.zeros(0)
+_E = Want(energy=True)
+
+
+class _SpinFields(NamedTuple):
+    """The spin terms at one state of the spins (fixed positions)."""
+
+    E_linear: float  # energy of the B = C s terms (−½ s·C s)
+    E_other: float  # of the others
+    B: np.ndarray  # every term's field
+    B_linear: Optional[np.ndarray]  # the B = C s terms' (None: there are none)
+
+    @property
+    def energy(self):
+        return self.E_linear + self.E_other
 #: Default midpoint tolerance with a bath at T > 0 acting: the noise moves each
 #: spin by ~√(2Dh) per step and the predictor cannot foresee it, so round-off
 #: (CollectivePRK's 1e-15) costs ~3 more sweeps per step for no difference
@@ -232,6 +248,30 @@ def damp_from(start, B, k, magnetic, out):
             out[i, 2] = z
 
 
+@threaded()
+def bath_jumps(y, y0, origin, B, c, kick, jump):
+    """What the predictor and the bath energy need from a bath (per row, rows
+    without spin 0): jump = y − origin (the bath's whole move) and kick =
+    (y − y0) + c_i y × B (the move since the fields B were taken at y0, plus
+    the explicit half step of precession in them: C·kick is the field change
+    the midpoint sees, for a term B = C s)."""
+    n = y.shape[0]
+    for blk in nb.prange((n + BLOCK - 1) // BLOCK):
+        lo = blk * BLOCK
+        m = min(n, lo + BLOCK) - lo
+        yf, af, of, Bf = _rows(y, lo, m), _rows(y0, lo, m), _rows(origin, lo, m), _rows(B, lo, m)
+        kf, jf, cc = _rows(kick, lo, m), _rows(jump, lo, m), c[lo:lo + m]
+        for j in range(m):
+            x, yy, z = yf[3 * j], yf[3 * j + 1], yf[3 * j + 2]
+            bx, by, bz = Bf[3 * j], Bf[3 * j + 1], Bf[3 * j + 2]
+            kf[3 * j] = (x - af[3 * j]) + cc[j] * (yy * bz - z * by)
+            kf[3 * j + 1] = (yy - af[3 * j + 1]) + cc[j] * (z * bx - x * bz)
+            kf[3 * j + 2] = (z - af[3 * j + 2]) + cc[j] * (x * by - yy * bx)
+            jf[3 * j] = x - of[3 * j]
+            jf[3 * j + 1] = yy - of[3 * j + 1]
+            jf[3 * j + 2] = z - of[3 * j + 2]
+
+
 def noise_amplitude(d_tau):
     r"""σ_i of the noise step N(τ) (:func:`_diffused`) for D_i τ = ``d_tau``:
     σ² = 2Dτ(1 + 5Dτ).
@@ -297,52 +337,72 @@ def ornstein_uhlenbeck(p, key, m, c1, c2, fix_com, out):
 
 
 @nb.njit(cache=True, inline="always")
-def _explicit_midpoint(sx, sy, sz, bx, by, bz, c):
-    """The part of the midpoint W = s + c W × B̄ (normalised) known from s and
-    B(s) alone: s + c t + c² (t × B − |t|² s/2), t = s × B (the rest — the
-    other spins' and the lattice's motion over the step — is extrapolated)."""
+def _frozen_field_midpoint(sx, sy, sz, bx, by, bz, c):
+    r"""The midpoint of one spin s in the frozen field B (``bx, by, bz``): the
+    unit W with W ∝ s + c W × B, the spherical midpoint step of the spin alone
+    (a Cayley rotation about B; :func:`~ase_spin.md.kernels.local_midpoint`
+    with its c = 2c). The part of the midpoint known from the start of the
+    step; the rest — the other spins' and the lattice's motion over the step
+    beyond the field used here — is extrapolated. Where that equation has no
+    root (a half-turn or more per step) the unit vector along
+    s + c s × B + c²(s·B)B (the root of m = s + c m × B)."""
+    wx, wy, wz, found = local_midpoint(sx, sy, sz, bx, by, bz, 2.0 * c)
     tx = sy * bz - sz * by
     ty = sz * bx - sx * bz
     tz = sx * by - sy * bx
-    q = 0.5 * (tx * tx + ty * ty + tz * tz)
-    c2 = c * c
-    return (sx + c * tx + c2 * (ty * bz - tz * by - q * sx),
-            sy + c * ty + c2 * (tz * bx - tx * bz - q * sy),
-            sz + c * tz + c2 * (tx * by - ty * bx - q * sz))
+    cu = c * c * (sx * bx + sy * by + sz * bz)
+    x, y, z = _unit(sx + c * tx + cu * bx, sy + c * ty + cu * by, sz + c * tz + cu * bz)
+    return (wx if found else x), (wy if found else y), (wz if found else z)
 
 
 @threaded()
 def predict_midpoint(s, B, c, R0, R1, R2, R3, coef, out, known):
-    """out_i = (:func:`_explicit_midpoint` + Σ_k coef_k R_k,i) / |…| (magnetic rows),
-    the explicit part into ``known`` (for :func:`midpoint_remainder`'s W − known)."""
-    for i in nb.prange(s.shape[0]):
-        sx, sy, sz = s[i, 0], s[i, 1], s[i, 2]
-        if sx == 0.0 and sy == 0.0 and sz == 0.0:
-            out[i, 0] = 0.0
-            out[i, 1] = 0.0
-            out[i, 2] = 0.0
-            known[i, 0] = 0.0
-            known[i, 1] = 0.0
-            known[i, 2] = 0.0
-            continue
-        vx, vy, vz = _explicit_midpoint(sx, sy, sz, B[i, 0], B[i, 1], B[i, 2], c[i])
-        known[i, 0] = vx
-        known[i, 1] = vy
-        known[i, 2] = vz
-        vx += _extrapolated(coef, R0, R1, R2, R3, i, 0)
-        vy += _extrapolated(coef, R0, R1, R2, R3, i, 1)
-        vz += _extrapolated(coef, R0, R1, R2, R3, i, 2)
-        x, y, z = _unit(vx, vy, vz)
-        out[i, 0] = x
-        out[i, 1] = y
-        out[i, 2] = z
+    """out_i = (:func:`_frozen_field_midpoint` + Σ_k coef_k R_k,i) / |…| (magnetic
+    rows, 0 elsewhere), the known part into ``known`` (for
+    :func:`midpoint_remainder`'s W − known). Blocks of flat rows without
+    branches: SIMD lanes (see :func:`bath_block`)."""
+    n = s.shape[0]
+    c0, c1, c2, c3 = coef[0], coef[1], coef[2], coef[3]
+    for blk in nb.prange((n + BLOCK - 1) // BLOCK):
+        lo = blk * BLOCK
+        m = min(n, lo + BLOCK) - lo
+        sf, Bf, cc = _rows(s, lo, m), _rows(B, lo, m), c[lo:lo + m]
+        r0, r1, r2, r3 = _rows(R0, lo, m), _rows(R1, lo, m), _rows(R2, lo, m), _rows(R3, lo, m)
+        of, kf = _rows(out, lo, m), _rows(known, lo, m)
+        for j in range(m):
+            sx, sy, sz = sf[3 * j], sf[3 * j + 1], sf[3 * j + 2]
+            spin = (sx != 0.0) | (sy != 0.0) | (sz != 0.0)
+            vx, vy, vz = _frozen_field_midpoint(sx, sy, sz, Bf[3 * j], Bf[3 * j + 1],
+                                                Bf[3 * j + 2], cc[j])
+            kf[3 * j] = vx if spin else 0.0
+            kf[3 * j + 1] = vy if spin else 0.0
+            kf[3 * j + 2] = vz if spin else 0.0
+        # a second loop: with every array in one, LLVM leaves it scalar
+        for j in range(m):
+            vx, vy, vz = kf[3 * j], kf[3 * j + 1], kf[3 * j + 2]
+            spin = (vx != 0.0) | (vy != 0.0) | (vz != 0.0)
+            x, y, z = _unit(
+                vx + (c0 * r0[3 * j] + c1 * r1[3 * j] + c2 * r2[3 * j] + c3 * r3[3 * j]),
+                vy + (c0 * r0[3 * j + 1] + c1 * r1[3 * j + 1] + c2 * r2[3 * j + 1]
+                      + c3 * r3[3 * j + 1]),
+                vz + (c0 * r0[3 * j + 2] + c1 * r1[3 * j + 2] + c2 * r2[3 * j + 2]
+                      + c3 * r3[3 * j + 2]))
+            of[3 * j] = x if spin else 0.0
+            of[3 * j + 1] = y if spin else 0.0
+            of[3 * j + 2] = z if spin else 0.0
 
 
 @threaded()
 def midpoint_remainder(W, s, B, c, out):
-    """out = W − :func:`_explicit_midpoint`: what it misses of the midpoint."""
+    """out = W − :func:`_frozen_field_midpoint`: what it misses of the midpoint
+    (rows without spin: W)."""
     for i in nb.prange(s.shape[0]):
-        vx, vy, vz = _explicit_midpoint(s[i, 0], s[i, 1], s[i, 2], B[i, 0], B[i, 1], B[i, 2],
+        if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+            out[i, 0] = W[i, 0]
+            out[i, 1] = W[i, 1]
+            out[i, 2] = W[i, 2]
+            continue
+        vx, vy, vz = _frozen_field_midpoint(s[i, 0], s[i, 1], s[i, 2], B[i, 0], B[i, 1], B[i, 2],
                                         c[i])
         out[i, 0] = W[i, 0] - vx
         out[i, 1] = W[i, 1] - vy
@@ -507,21 +567,26 @@ class Langevin(CollectivePRK):
     def _prepare(self, st):
         super()._prepare(st)
         n = len(st.s)
-        st.EB = None  # (spin energy, fields) at the current spins and q, if known
+        st.EB = None  # _SpinFields at the current spins and q, if known
         # after a step whose closing bath half was put off (no output between
-        # it and the next step): (spin energy, fields) at the spins then, or
-        # (None, None) without spin bath; None when nothing is pending
-        st.pending = None
+        # it and the next step): _SpinFields at the spins then, or None without
+        # spin bath; False when nothing is pending
+        st.pending = False
         # the predictor's history of midpoint remainders W − s − c s × B(s)
         st.increments = deque(maxlen=4)
         st.increment_order = 0
         st.s_start = st.s
-        st.B_start = None  # fields at s_start (from the bath's last pass), if known
+        st.B_start = None  # the predictor's field at s_start (_opening_bath), if known
+        st.B_next = None  # that field, from the bath before the collective step
         # the explicit part of the midpoint predicted from s_start (see _predict):
         # W − it is the remainder kept, without a second pass
         st.known = st.known_for = None
         st.bath_coefficients = {}
         st.s_before = np.zeros((n, 3))
+        # the spins at the bath's start, the bath's move and the predictor's kick
+        # (see bath_jumps); the spins' next buffer
+        st.s_origin, st.jump, st.kick = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+        st.s_spare = np.zeros((n, 3))
         st.no_damping = np.zeros(n)
 
     def _coefficients(self):
@@ -567,7 +632,8 @@ class Langevin(CollectivePRK):
         if stage == 0:
             self._opening_bath()
         st.s_start = st.s
-        st.B_start = st.EB[1] if stage == 0 and st.EB is not None else None
+        st.B_start = st.B_next if stage == 0 else None
+        st.B_next = None
         result = super()._substep(h, stage, want_energy)
         st.EB = None
         if stage == len(self.gammas) - 1:
@@ -607,34 +673,67 @@ class Langevin(CollectivePRK):
         After a step whose closing half was put off (``pending``), the whole
         bath between the two collective steps: O_L(h) and, in time order,
         D(h/2) N(h) D*(h/2) (D: see :meth:`_closing_bath`), y₀ from the
-        fields at the bath's start."""
+        fields at the bath's start.
+
+        The bath energy E(y) − E(x) (x the spins at the bath's start) and the
+        predictor's field take one pass after the move, not a pass at y: for
+        the terms B = C s (``linear_pairs``; C symmetric, fixed positions)
+
+        .. math:: E(y) - E(x) = -\delta\cdot\mathbf B(x)
+                  - \tfrac12\,\delta\cdot C\delta, \qquad \delta = y - x,
+
+        exactly, and the field the midpoint predictor takes is
+        B(y₀) + C k, k = (y − y₀) + c y × B(y₀) (:func:`bath_jumps`): B(y)
+        plus the first-order change over the explicit half step, the
+        neighbours' motion that the random moves make unpredictable from the
+        last steps (3 midpoint sweeps instead of 4). C k and δ·Cδ come from one
+        pass over the pairs (:func:`~ase_spin.md.kernels.linear_field_and_form`);
+        other terms give their energy at y from ``add``."""
         st = self._state
         pending = st.pending
-        st.pending = None
-        self._lattice_bath(self.dt if pending is not None else 0.5 * self.dt)
+        st.pending = False
+        self._lattice_bath(self.dt if pending is not False else 0.5 * self.dt)
         if not self._spin_bath_on():
             return
-        kappa_h, sig_h, sig_half, _ = self._coefficients()
+        kappa_h, sig_h, sig_half, c = self._coefficients()
         noisy = self.spin_temp > 0.0
-        if pending is not None:
-            E0, B0 = pending
+        if pending is not False:
+            start = pending
             k1, sigma = 0.5 * kappa_h, sig_h
         else:
-            if st.EB is None:
-                st.EB = self._spin_energy_fields()
-            E0, B0 = st.EB
+            start = st.EB if st.EB is not None else self._spin_energy_fields()
             k1, sigma = st.no_damping, sig_half
         key = new_key(self.rng) if noisy else np.uint64(0)
         if not noisy:
             sigma = st.no_damping
         mag = self.ev.magnetic
-        bath_block(st.s, st.s_before, B0, k1, sigma, key, 0.5 * kappa_h, mag)
+        np.copyto(st.s_origin, st.s)
+        bath_block(st.s, st.s_before, start.B, k1, sigma, key, 0.5 * kappa_h, mag)
         # y₀ = D_{B0}(h/2) c is in st.s; the fields at y₀ give the corrector
-        B1 = self._spin_energy_fields(energy=False)[1]
-        damp_from(st.s_before, B1, 0.5 * kappa_h, mag, st.s)
+        B1 = self._spin_energy_fields(energy=False).B
+        y0, y = st.s, st.s_spare
+        damp_from(st.s_before, B1, 0.5 * kappa_h, mag, y)
+        st.s, st.s_spare = y, y0
         st.carry_s[:] = 0.0  # the spins were replaced: no rounding error to carry
-        st.EB = self._spin_energy_fields()  # the bath energy; fields for the predictor
-        self.bath_energy_spin += st.EB[0] - E0
+        if start.B_linear is None:  # no term of the form B = C s
+            end = self._spin_energy_fields()
+            self.bath_energy_spin += end.energy - start.energy
+            st.B_next = end.B
+            return
+        bath_jumps(y, y0, st.s_origin, B1, c, st.kick, st.jump)
+        B = B1  # B(y₀) + C k, below
+        form = 0.0
+        others = 0.0
+        for op in st.ops:
+            if hasattr(op, "linear_pairs"):
+                pairs, coupling = op.linear_pairs()
+                form += kernels.linear_field_and_form(threads.count(), pairs.row, pairs.j,
+                                                      coupling, pairs.half, st.kick, st.jump, B)
+            else:
+                others += op.add(y, _E, _NO_FORCES, _NO_FORCES, _NO_ENERGIES)[0]
+        self.bath_energy_spin += (-float(np.einsum("ij,ij->", st.jump, start.B_linear))
+                                  - 0.5 * form + (others - start.E_other))
+        st.B_next = B
 
     def _closing_bath(self):
         r"""The bath after the collective step: O_L(h/2), D(h/2) about the fields
@@ -642,10 +741,10 @@ class Langevin(CollectivePRK):
         takes over (see :meth:`_step`)."""
         st = self._state
         on = self._spin_bath_on()
-        EB = self._spin_energy_fields() if on else (None, None)
+        EB = self._spin_energy_fields() if on else None
         if self._defer:
             st.pending = EB
-            st.EB = EB if on else None
+            st.EB = EB
             return
         self._lattice_bath(0.5 * self.dt)
         if not on:
@@ -656,18 +755,19 @@ class Langevin(CollectivePRK):
             key = new_key(self.rng)
         else:
             sigma = st.no_damping
-        bath_block(st.s, st.s_before, EB[1], 0.5 * kappa_h, sigma, key, st.no_damping,
+        bath_block(st.s, st.s_before, EB.B, 0.5 * kappa_h, sigma, key, st.no_damping,
                    self.ev.magnetic)
         st.carry_s[:] = 0.0
         st.EB = self._spin_energy_fields()
-        self.bath_energy_spin += st.EB[0] - EB[0]
+        self.bath_energy_spin += st.EB.energy - EB.energy
 
     def _predict(self, stage):
-        """The midpoint spins predicted as W = s + c t + c²(t × B − |t|² s/2) + R
-        (t = s × B(s), c = (h/2)σ r/(ħ(1+λ²))), R extrapolated from the last steps' remainders: the
-        baths move the spins between steps by random amounts, which
-        extrapolating W itself (as CollectivePRK does) would carry into the
-        prediction."""
+        """The midpoint spins predicted as W = W₀ + R, normalised: W₀ the midpoint
+        of each spin alone in the field the bath left (:func:`_frozen_field_midpoint`
+        with c = (h/2)σ r/(ħ(1+λ²)) and B(y₀) + C k, see :meth:`_opening_bath`),
+        R extrapolated from the last steps' remainders W − W₀. The baths move
+        the spins between steps by random amounts, which extrapolating W itself
+        (as CollectivePRK does) would carry into the prediction."""
         st = self._state
         history = st.increments
         if stage != 0 or not history or st.B_start is None:
@@ -706,7 +806,7 @@ class Langevin(CollectivePRK):
         history.append(R)
 
     def _spin_energy_fields(self, energy=True):
-        """(spin energy or None, fields) at the current spins: one pass.
+        """:class:`_SpinFields` at the current spins: one pass.
 
         Operators of the form B_i = Σ_j c_ij s_j (``linear_pairs``: exchange)
         give their fields alone, and their energy as −½ Σ_i s_i·B_i: the
@@ -716,19 +816,22 @@ class Langevin(CollectivePRK):
         st = self._state
         s = st.s
         B = np.zeros_like(s)
-        E = 0.0
         others = []
         for op in st.ops:
             if hasattr(op, "linear_pairs"):
                 op.field(s, B)
             else:
                 others.append(op)
-        if energy and len(others) < len(st.ops):
-            E = -0.5 * float(np.einsum("ij,ij->", s, B))
+        linear = None
+        E_linear = E_other = 0.0
+        if len(others) < len(st.ops):
+            linear = B.copy() if others else B
+            if energy:
+                E_linear = -0.5 * float(np.einsum("ij,ij->", s, B))
         want = _EB if energy else _B
         for op in others:
-            E += op.add(s, want, B, _NO_FORCES, _NO_ENERGIES)[0]
-        return (float(E) if energy else None), B
+            E_other += op.add(s, want, B, _NO_FORCES, _NO_ENERGIES)[0]
+        return _SpinFields(float(E_linear), float(E_other), B, linear)
 
     def _lattice_bath(self, tau):
         """O_L(τ): the exact Ornstein–Uhlenbeck step of the momenta; adds the
