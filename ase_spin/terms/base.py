@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import types
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -102,6 +103,20 @@ class PairParameters(Mapping):
 
     def __repr__(self):
         return repr(self._data)
+
+
+def kernel_twin(fn, suffix, **constants):
+    """``fn`` (a kernel's Python function) with the module constants
+    ``constants`` replaced (e.g. a request's flags, which numba then compiles
+    as constants: the work not asked for drops out), under a name of its own
+    (numba's disk cache keeps the twins apart)."""
+    glob = dict(fn.__globals__, **constants)
+    twin = types.FunctionType(fn.__code__, glob, fn.__name__ + suffix, fn.__defaults__,
+                              fn.__closure__)
+    twin.__qualname__ = fn.__qualname__ + suffix
+    twin.__module__ = fn.__module__
+    twin.__doc__ = fn.__doc__
+    return twin
 
 
 def pair_values(value, what, check):

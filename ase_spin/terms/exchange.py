@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import types
 
 import numba as nb
 import numpy as np
@@ -12,7 +11,7 @@ from ..neighbors import (balanced_chunks, reduce_threads, reduce_threads_serial,
                          sum_over_threads)
 from ..threads import threaded
 from ..validate import flag, length, real_scalar
-from .base import (Parameterised, SpinOperator, SpinTerm, is_pair_mapping,
+from .base import (Parameterised, SpinOperator, SpinTerm, is_pair_mapping, kernel_twin,
                    linear_pair_field, pair_values, resolve_pairs)
 
 __all__ = ["Coupling", "BetheSlater", "Cubic", "Exchange", "ExchangeOperator"]
@@ -578,16 +577,8 @@ _WANT = None
 
 
 def _twin(fn, suffix, **constants):
-    """``fn`` (a pass kernel's Python source) with the module constants
-    ``constants`` (``_FORMED``, ``_WANT``) replaced, under a name of its own
-    (numba's disk cache keeps them apart)."""
-    glob = dict(fn.__globals__, **constants)
-    twin = types.FunctionType(fn.__code__, glob, fn.__name__ + suffix, fn.__defaults__,
-                              fn.__closure__)
-    twin.__qualname__ = fn.__qualname__ + suffix
-    twin.__module__ = fn.__module__
-    twin.__doc__ = fn.__doc__
-    return twin
+    """:func:`~ase_spin.terms.base.kernel_twin` (``_FORMED``, ``_WANT``)."""
+    return kernel_twin(fn, suffix, **constants)
 
 
 def _formed_twin(fn):

@@ -10,7 +10,8 @@ from ..neighbors import (balanced_chunks, reduce_threads, reduce_threads_serial,
                          sum_over_threads)
 from ..threads import threaded
 from ..validate import length
-from .base import Term, is_pair_mapping, pair_values, real_or_none, resolve_pairs
+from .base import (Term, is_pair_mapping, kernel_twin, pair_values, real_or_none,
+                   resolve_pairs)
 
 __all__ = ["LennardJones"]
 
@@ -150,9 +151,11 @@ class LennardJones(Term):
         ``want`` is a :class:`~ase_spin.hamiltonian.Want`. Returns (energy, virial
         in Voigt order xx yy zz yz xz xy, eV).
         """
-        out = _lj_kernel(threads.all_threads(), positions, pairs.row, pairs.j, pairs.image,
-                         pairs.images, types, table, forces, energies, want.forces,
-                         want.energy, want.energies, want.virial)
+        forces_only = want.forces and not (want.energy or want.energies or want.virial)
+        kernel = _lj_forces_kernel if forces_only else _lj_kernel
+        out = kernel(threads.all_threads(), positions, pairs.row, pairs.j, pairs.image,
+                     pairs.images, types, table, forces, energies, want.forces,
+                     want.energy, want.energies, want.virial)
         return out[0], out[1:]
 
     def compiled_lattice(self, pairs, types, table):
@@ -187,6 +190,11 @@ def _lj_pair(r2, sig2, eps4, mode, e0, rc2, ro2):
     return u, du_r
 
 
+#: The request flags (forces, energy, energies, virial) of a twin compiled for
+#: one request (``_lj_forces_kernel``: forces alone), None in the general kernel.
+_WANT = None
+
+
 @threaded(always=True, reduce_threads=lambda: reduce_threads_serial)
 def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, energies,
                want_forces, want_energy, want_energies, want_virial):
@@ -198,6 +206,8 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
     Threads take runs of rows of equal pair count and scatter into their own
     buffers, summed at the end: half the pair work of a full list, no races.
     """
+    if _WANT is not None:  # a twin for one request: the flags are constants
+        want_forces, want_energy, want_energies, want_virial = _WANT
     n = len(row) - 1
     bounds = balanced_chunks(row, nthreads)
     fbuf = np.zeros((nthreads, n if want_forces else 0, 3))
@@ -227,7 +237,8 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
                 u, du_r = _lj_pair(r2, table[ti, tj, _SIG2], table[ti, tj, _EPS4],
                                    table[ti, tj, _MODE], table[ti, tj, _E0], rc2,
                                    table[ti, tj, _RO2])
-                ei += u
+                if want_energy or want_energies:
+                    ei += u
                 if want_forces:
                     gx = du_r * dx
                     gy = du_r * dy
@@ -266,7 +277,10 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
     return sum_over_threads(acc)
 
 
-_lj_serial = _lj_kernel.serial
+#: The kernel for forces alone (every step of the integrators): no energy summed.
+_lj_forces_kernel = threaded(always=True, reduce_threads=lambda: reduce_threads_serial)(
+    kernel_twin(_lj_kernel.__wrapped__, "_forces", _WANT=(True, False, False, False)))
+_lj_serial = _lj_forces_kernel.serial
 
 
 @nb.njit(cache=True)
@@ -278,7 +292,7 @@ def _lj_forces(positions, data, forces):
                np.zeros(0), True, False, False, False)
 
 
-_lj_parallel = _lj_kernel.parallel
+_lj_parallel = _lj_forces_kernel.parallel
 
 
 @nb.njit(cache=True)
