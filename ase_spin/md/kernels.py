@@ -5,7 +5,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..neighbors import balanced_chunks
+from ..neighbors import balanced_chunks, reduce_threads, reduce_threads_serial
 from .. import threads
 from ..threads import serial_twin, threaded
 
@@ -509,7 +509,7 @@ def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, l
     return change.max()
 
 
-@threaded()
+@threaded(reduce_threads=lambda: reduce_threads_serial)
 def linear_field_and_form(nthreads, row, nbr, c, half, u, d, out):
     """One pass over the pairs of a term in the ``linear_pairs`` form (B = C x,
     B_i = Σ_j c_k x_j over k = (i → j), C symmetric): out += C u, and returns
@@ -554,12 +554,7 @@ def linear_field_and_form(nthreads, row, nbr, c, half, u, d, out):
                 out[i, 2] += fz
         form[t] = acc
     if half:
-        for t in nb.prange(nthreads):
-            for i in range((n * t) // nthreads, (n * (t + 1)) // nthreads):
-                for v in range(nthreads):
-                    out[i, 0] += buf[v, i, 0]
-                    out[i, 1] += buf[v, i, 1]
-                    out[i, 2] += buf[v, i, 2]
+        reduce_threads(buf, out)
     total = 0.0
     for t in range(nthreads):
         total += form[t]
