@@ -151,7 +151,11 @@ class LennardJones(Term):
         ``want`` is a :class:`~ase_spin.hamiltonian.Want`. Returns (energy, virial
         in Voigt order xx yy zz yz xz xy, eV).
         """
-        forces_only = want.forces and not (want.energy or want.energies or want.virial)
+        # the forces-only twin where it pays for its compilation (~1.7 s, once per
+        # install): the systems whose steps take the general path; below, the
+        # fused step and the general kernel (docs/benchmarks.md, first use)
+        forces_only = (want.forces and not (want.energy or want.energies or want.virial)
+                       and len(positions) >= threads.SERIAL_BELOW)
         kernel = _lj_forces_kernel if forces_only else _lj_kernel
         out = kernel(threads.all_threads(), positions, pairs.row, pairs.j, pairs.image,
                      pairs.images, types, table, forces, energies, want.forces,
@@ -277,10 +281,11 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
     return sum_over_threads(acc)
 
 
-#: The kernel for forces alone (every step of the integrators): no energy summed.
+#: The kernel for forces alone (the integrators' steps from threads.SERIAL_BELOW
+#: atoms on, see LennardJones.compute): no energy summed, no branch on the flags.
 _lj_forces_kernel = threaded(always=True, reduce_threads=lambda: reduce_threads_serial)(
     kernel_twin(_lj_kernel.__wrapped__, "_forces", _WANT=(True, False, False, False)))
-_lj_serial = _lj_forces_kernel.serial
+_lj_serial = _lj_kernel.serial
 
 
 @nb.njit(cache=True)
@@ -292,7 +297,7 @@ def _lj_forces(positions, data, forces):
                np.zeros(0), True, False, False, False)
 
 
-_lj_parallel = _lj_forces_kernel.parallel
+_lj_parallel = _lj_kernel.parallel
 
 
 @nb.njit(cache=True)
