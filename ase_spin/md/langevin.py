@@ -44,6 +44,8 @@ class _SpinFields(NamedTuple):
     @property
     def energy(self):
         return self.E_linear + self.E_other
+
+
 #: Default midpoint tolerance with a bath at T > 0 acting: the noise moves each
 #: spin by ~√(2Dh) per step and the predictor cannot foresee it, so round-off
 #: (CollectivePRK's 1e-15) costs ~3 more sweeps per step for no difference
@@ -144,10 +146,10 @@ def _direction(B, i):
 
 # The kernels below run over blocks of BLOCK spins, each in two loops: one
 # without branches for every spin whose damping angles are small (the series
-# form) and whose field is not zero, on SIMD lanes (3–4× faster), then the few
-# others one by one. The first indexes flat views of the block from 0: with
-# an offset, or with 2-d indexing, LLVM does not vectorise it. The results are
-# the same bits as the one-by-one loop alone.
+# form) and whose field is not zero, on SIMD lanes, then the few others one by
+# one. The first indexes flat views of the block from 0: with an offset, or
+# with 2-d indexing, LLVM does not vectorise it. The results are the same bits
+# as the one-by-one loop alone.
 
 @nb.njit(cache=True, inline="always")
 def _rows(a, lo, m):
@@ -572,13 +574,13 @@ class Langevin(CollectivePRK):
         # it and the next step): _SpinFields at the spins then, or None without
         # spin bath; False when nothing is pending
         st.pending = False
-        # the predictor's history of midpoint remainders W − s − c s × B(s)
+        # the predictor's history of midpoint remainders W − W₀ (see _predict)
         st.increments = deque(maxlen=4)
         st.increment_order = 0
         st.s_start = st.s
         st.B_start = None  # the predictor's field at s_start (_opening_bath), if known
         st.B_next = None  # that field, from the bath before the collective step
-        # the explicit part of the midpoint predicted from s_start (see _predict):
+        # the known part W₀ of the midpoint predicted from s_start (see _predict):
         # W − it is the remainder kept, without a second pass
         st.known = st.known_for = None
         st.bath_coefficients = {}

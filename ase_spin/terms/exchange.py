@@ -576,14 +576,9 @@ _FORMED = False
 _WANT = None
 
 
-def _twin(fn, suffix, **constants):
-    """:func:`~ase_spin.terms.base.kernel_twin` (``_FORMED``, ``_WANT``)."""
-    return kernel_twin(fn, suffix, **constants)
-
-
 def _formed_twin(fn):
-    """``fn`` with ``_FORMED = True`` (:func:`_twin`)."""
-    return _twin(fn, "_formed", _FORMED=True)
+    """``fn`` with ``_FORMED = True`` (:func:`~ase_spin.terms.base.kernel_twin`)."""
+    return kernel_twin(fn, "_formed", _FORMED=True)
 
 
 #: The requests with twins of their own (see _WANT).
@@ -872,9 +867,9 @@ _spin_pass_half_kernel = threaded(reduce_threads=lambda: reduce_threads_serial)(
 _spin_pass_half_formed = threaded(reduce_threads=lambda: reduce_threads_serial)(
     _formed_twin(_spin_pass_half))
 _spin_pass_half_forces = threaded(reduce_threads=lambda: reduce_threads_serial)(
-    _twin(_spin_pass_half, "_forces", _WANT=_FORCES_ONLY))
+    kernel_twin(_spin_pass_half, "_forces", _WANT=_FORCES_ONLY))
 _spin_pass_half_field = threaded(reduce_threads=lambda: reduce_threads_serial)(
-    _twin(_spin_pass_half, "_field", _WANT=_FIELD_ONLY))
+    kernel_twin(_spin_pass_half, "_field", _WANT=_FIELD_ONLY))
 
 
 @threaded(always=True, reduce_threads=lambda: reduce_threads_serial)

@@ -151,9 +151,9 @@ class LennardJones(Term):
         ``want`` is a :class:`~ase_spin.hamiltonian.Want`. Returns (energy, virial
         in Voigt order xx yy zz yz xz xy, eV).
         """
-        # the forces-only twin where it pays for its compilation (~1.7 s, once per
-        # install): the systems whose steps take the general path; below, the
-        # fused step and the general kernel (docs/benchmarks.md, first use)
+        # the forces-only twin only where it repays its compilation (once per
+        # install): systems whose steps take the general path; below, the fused
+        # step and the general kernel (docs/benchmarks.md, first use)
         forces_only = (want.forces and not (want.energy or want.energies or want.virial)
                        and len(positions) >= threads.SERIAL_BELOW)
         kernel = _lj_forces_kernel if forces_only else _lj_kernel
@@ -176,7 +176,7 @@ def _lj_pair(r2, sig2, eps4, mode, e0, rc2, ro2):
     """u(r) and (du/dr)/r for one pair (r2 < rc²), from its row of the table.
     Scalars only: an array passed into an inlined function with branches
     costs a reference-count increment and decrement (two atomic calls) per
-    pair, which numba's pruning does not remove — 3× the kernel's time."""
+    pair, which numba's pruning does not remove (docs/benchmarks.md)."""
     sr2 = sig2 / r2
     sr6 = sr2 * sr2 * sr2
     u = eps4 * (sr6 * sr6 - sr6)
