@@ -29,7 +29,7 @@ import numpy as np
 
 from ..threads import threaded
 
-__all__ = ["normal", "fill_normal", "new_key"]
+__all__ = ["normal", "normals", "fill_normal", "new_key"]
 
 _LAYERS = 256
 #: The ziggurat's base-strip edge and the common area of its layers (256 layers).
@@ -111,12 +111,43 @@ def normal(key, k):
         k += step
 
 
+@nb.njit(cache=True, inline="always")
+def normals(key, k0, out):
+    """out[j] = :func:`normal` (key, k0 + j) for every j of the 1-d array ``out``,
+    the same bits. The quick-accept case of the ziggurat (98.8% of words) runs
+    in a loop without branches, so that it runs on SIMD lanes (a loop calling
+    :func:`normal`, with its rejection loop, stays scalar); the words it does
+    not accept are marked NaN and redone one by one by :func:`normal`."""
+    m = out.shape[0]
+    rejected = 0
+    for j in range(m):
+        r = _bits(key, k0 + j)
+        layer = r & np.uint64(0xFF)
+        u = r >> np.uint64(12)
+        x = u * _W[layer]
+        accept = u < _K[layer]
+        rejected += not accept
+        x = -x if (r >> np.uint64(8)) & np.uint64(1) else x
+        out[j] = x if accept else np.nan
+    if rejected:
+        for j in range(m):
+            if np.isnan(out[j]):
+                out[j] = normal(key, k0 + j)
+
+
+#: Numbers per block of :func:`fill_normal` (a multiple of 3 and of 2: whole
+#: atoms and spins when the baths draw per block).
+_FILL_BLOCK = 768
+
+
 @threaded()
 def fill_normal(key, out):
     """out.flat[k] = :func:`normal` (key, k) for every k (any shape, contiguous)."""
     flat = out.reshape(-1)
-    for k in nb.prange(flat.shape[0]):
-        flat[k] = normal(key, k)
+    n = flat.shape[0]
+    for blk in nb.prange((n + _FILL_BLOCK - 1) // _FILL_BLOCK):
+        lo = blk * _FILL_BLOCK
+        normals(key, lo, flat[lo:min(n, lo + _FILL_BLOCK)])
 
 
 def new_key(rng):

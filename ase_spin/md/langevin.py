@@ -18,7 +18,7 @@ from ..hamiltonian import Want
 from ..validate import flag, real_scalar
 from . import kernels
 from .collective import CollectivePRK
-from .gaussian import new_key, normal
+from .gaussian import new_key, normals
 from .kernels import BLOCK, local_midpoint
 from .logger import SpinMDLogger
 from .. import threads
@@ -168,13 +168,14 @@ def bath_block(s, before, B, k1, sigma, key, k2, magnetic):
     for blk in nb.prange((n + BLOCK - 1) // BLOCK):
         lo = blk * BLOCK
         m = min(n, lo + BLOCK) - lo
-        xi = np.zeros(2 * m)
-        for j in range(m):
-            if sigma[lo + j] != 0.0:
-                xi[2 * j] = normal(key, 2 * (lo + j))
-                xi[2 * j + 1] = normal(key, 2 * (lo + j) + 1)
         sf, bf, Bf = _rows(s, lo, m), _rows(before, lo, m), _rows(B, lo, m)
         kk1, kk2, sig, mag = k1[lo:lo + m], k2[lo:lo + m], sigma[lo:lo + m], magnetic[lo:lo + m]
+        xi = np.zeros(2 * m)
+        noisy = False
+        for j in range(m):
+            noisy |= sig[j] != 0.0
+        if noisy:  # (σ = 0 rows do not use theirs)
+            normals(key, 2 * lo, xi)
         rest = 0
         for j in range(m):
             bx, by, bz = Bf[3 * j], Bf[3 * j + 1], Bf[3 * j + 2]
@@ -301,11 +302,14 @@ def ornstein_uhlenbeck(p, key, m, c1, c2, fix_com, out):
     nblocks = (n + BLOCK - 1) // BLOCK
     part = np.zeros((nblocks, 4))
     for blk in nb.prange(nblocks):
-        for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
+        lo = blk * BLOCK
+        xi = np.empty(3 * (min(n, lo + BLOCK) - lo))
+        normals(key, 3 * lo, xi)
+        for i in range(lo, min(n, lo + BLOCK)):
             r = c2 * np.sqrt(m[i])
             part[blk, 3] += m[i]
             for a in range(3):
-                v = c1 * p[i, a] + r * normal(key, 3 * i + a)
+                v = c1 * p[i, a] + r * xi[3 * (i - lo) + a]
                 out[i, a] = v
                 part[blk, a] += v - p[i, a]
     dP = np.zeros(3)
