@@ -40,7 +40,7 @@ from .spins import get_spins, set_spins
 from .terms.exchange import Coupling, Exchange
 
 __all__ = ["spirit_available", "load_spirit", "spirit_units", "SpiritHeisenberg",
-           "ConstantCoupling", "run_collective", "SOLVERS"]
+           "ConstantCoupling", "run_collective", "run_splitting", "SOLVERS"]
 
 #: Spirit's LLG solvers for dynamics (VP and the LBFGS solvers only minimise).
 SOLVERS = ("RK4", "Heun", "Depondt", "SIB")
@@ -262,13 +262,27 @@ def run_collective(scene, spins, order, dt_ps, steps, threads=None, tol=None):
     CollectivePRK on ``scene`` (a :class:`SpiritHeisenberg`), set-up not timed."""
     from .md.collective import CollectivePRK
 
-    atoms = scene.atoms(spins)
-    dyn = CollectivePRK(atoms, dt_ps * _PS, order=order, threads=threads, tol=tol,
+    dyn = CollectivePRK(scene.atoms(spins), dt_ps * _PS, order=order, threads=threads,
+                        tol=tol, **scene.integrator_options())
+    return _timed_run(dyn, steps)
+
+
+def run_splitting(scene, spins, order, dt_ps, steps, rotation="cayley"):
+    """``(final spins, wall time of the steps, nan)`` of :class:`SuzukiTrotter`
+    (sequential sweeps: one thread) on ``scene``, set-up not timed."""
+    from .md.splitting import SuzukiTrotter
+
+    dyn = SuzukiTrotter(scene.atoms(spins), dt_ps * _PS, order=order, rotation=rotation,
                         **scene.integrator_options())
+    return _timed_run(dyn, steps)
+
+
+def _timed_run(dyn, steps):
     prepare = getattr(dyn, "_sync", None)  # pair operators, outside the timed steps
     if prepare is not None:
         prepare()
     t0 = time.perf_counter()
     dyn.run(steps)
     wall = time.perf_counter() - t0
-    return get_spins(atoms), wall, dyn.total_iterations / max(dyn.total_steps, 1)
+    sweeps = dyn.total_iterations / max(dyn.total_steps, 1) if dyn.total_iterations else np.nan
+    return get_spins(dyn.atoms), wall, sweeps

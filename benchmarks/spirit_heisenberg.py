@@ -1,5 +1,6 @@
-"""Pure-spin Heisenberg ferromagnet: ase_spin's CollectivePRK against Spirit
-(spirit-code, ``pip install spirit``): one scene in both codes, one process.
+"""Pure-spin Heisenberg ferromagnet: ase_spin's CollectivePRK (and its
+SuzukiTrotter splitting) against Spirit (spirit-code, ``pip install spirit``):
+one scene in both codes, one process.
 
     PYTHONPATH=. python benchmarks/spirit_heisenberg.py [--sizes 8 32] [--threads 1 2]
         [--repeats 3] [--budget 30] [--long-steps 100000 2000] [--tol T] [--quick]
@@ -35,6 +36,8 @@ Threads: the Spirit wheel on PyPI is built without OpenMP and without C++
 threads (printed below): it runs on one thread. ase_spin runs with ``threads=1``
 (equal footing) and ``threads=2``; systems under ``ase_spin.threads.SERIAL_BELOW``
 atoms run serial whatever is asked, so there only threads=1 is measured.
+SuzukiTrotter (order 2 and 4, LAMMPS's Cayley rotation) sweeps the spins one
+after the other: one thread.
 
 Energy: --long-steps steps (one count per size) at dt = 2⁻¹⁰ ps ≈ 0.98 fs
 (Spirit's default step is 1 fs), every code's spins evaluated by ase_spin's
@@ -55,14 +58,14 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(__file__))
 
-from ase_spin import CollectivePRK  # noqa: E402
+from ase_spin import CollectivePRK, SuzukiTrotter  # noqa: E402
 from ase_spin.hamiltonian import Want  # noqa: E402
 from ase_spin.md.base import TimestepWarning  # noqa: E402
 from ase_spin.md.ode import reference_solution  # noqa: E402
 from ase_spin.scenes import cone  # noqa: E402
 from ase_spin.spins import get_spins  # noqa: E402
 from ase_spin.spirit_peer import (SOLVERS, SpiritHeisenberg, load_spirit,  # noqa: E402
-                                  run_collective, spirit_available)
+                                  run_collective, run_splitting, spirit_available)
 from ase_spin.threads import SERIAL_BELOW  # noqa: E402
 from machine import describe  # noqa: E402
 
@@ -75,6 +78,8 @@ FLOOR = 3e-12
 SPIRIT_LADDERS = {"RK4": range(6, 17), "Heun": range(8, 17), "Depondt": range(7, 17),
                   "SIB": range(7, 17)}
 PRK_LADDERS = {2: range(7, 17), 4: range(6, 16), 6: range(6, 15)}
+#: ase_spin's SuzukiTrotter (LAMMPS's splitting, sequential sweeps, one thread)
+SPLITTING_LADDERS = {2: range(6, 17), 4: range(5, 16)}
 
 
 def rms(a, b):
@@ -130,6 +135,8 @@ def work_precision(scene, s0, s_ref, t_end_ps, threads, repeats, budget, quick, 
             for solver, ks in SPIRIT_LADDERS.items() for k in ks]
     jobs += [("ase_spin", f"CollectivePRK order {order}", order, th, k)
              for order, ks in PRK_LADDERS.items() for th in threads for k in ks]
+    jobs += [("ase_spin", f"SuzukiTrotter order {order}", order, 1, k)
+             for order, ks in SPLITTING_LADDERS.items() for k in ks]
     if quick:
         jobs = [j for j in jobs if j[4] <= 9]
     order_of_runs = sorted(jobs, key=lambda j: (j[4], j[0], str(j[1]), j[3]))
@@ -148,8 +155,11 @@ def work_precision(scene, s0, s_ref, t_end_ps, threads, repeats, budget, quick, 
                 sweeps = float("nan")
             else:
                 try:
-                    s, wall, sweeps = run_collective(scene, s0, what, dt, steps, threads=th,
-                                                     tol=tol)
+                    if label.startswith("Suzuki"):
+                        s, wall, sweeps = run_splitting(scene, s0, what, dt, steps)
+                    else:
+                        s, wall, sweeps = run_collective(scene, s0, what, dt, steps,
+                                                         threads=th, tol=tol)
                 except Exception as exc:  # the midpoint iteration may fail at large dt
                     if rep == 0:
                         print(f"# {label}, dt = 2^-{k} ps: {type(exc).__name__}: "
@@ -197,13 +207,15 @@ def wall_at(rows, target):
 
 
 def equal_error_table(rows, n, threads):
-    """Best Spirit solver against the best CollectivePRK order at each error."""
+    """Best Spirit solver against the best CollectivePRK order at each error (and
+    against the best ase_spin method, SuzukiTrotter included)."""
     methods = {}
     for r in rows:
         methods.setdefault((r[0], r[1], r[2]), []).append(r)
 
     def best(select):
-        found = [(w[0], w[1], key[1].replace("CollectivePRK ", "")) for key, v in methods.items()
+        found = [(w[0], w[1], key[1].replace("CollectivePRK ", "")
+                  .replace("SuzukiTrotter order ", "splitting ")) for key, v in methods.items()
                  if select(key) for w in [wall_at(v, level)] if w is not None]
         return min(found) if found else None
 
@@ -215,15 +227,19 @@ def equal_error_table(rows, n, threads):
     head = ["error", "Spirit, 1 thread (s)"]
     for t in threads:
         head += [f"CollectivePRK, {t} thread{'s' if t > 1 else ''} (s)", "ours / Spirit"]
+    head += ["best ase_spin method (s)", "best / Spirit"]
     print("| " + " | ".join(head) + " |")
     print("|---" * len(head) + "|")
     for level in [1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11]:
         sp = best(lambda key: key[0] == "Spirit")
         cells = [f"{level:.0e}", cell(sp)]
         for t in threads:
-            ours = best(lambda key, t=t: key[0] == "ase_spin" and key[2] == t)
+            ours = best(lambda key, t=t: key[0] == "ase_spin" and key[2] == t
+                        and key[1].startswith("CollectivePRK"))
             cells.append(cell(ours))
             cells.append(f"{ours[0] / sp[0]:.2f}" if ours and sp else "—")
+        ours = best(lambda key: key[0] == "ase_spin")
+        cells += [cell(ours), f"{ours[0] / sp[0]:.2f}" if ours and sp else "—"]
         if sp or any(c != "not reached" for c in cells[2::2]):
             print("| " + " | ".join(cells) + " |")
 
@@ -263,6 +279,11 @@ def long_run(scene, s0, steps, threads):
                         *sampled(dyn.run, lambda atoms=atoms: get_spins(atoms))))
         except Exception as exc:
             print(f"# energy run, order {order}: {type(exc).__name__}: {str(exc)[:120]}")
+    for order in SPLITTING_LADDERS:
+        atoms = scene.atoms(s0)
+        dyn = SuzukiTrotter(atoms, dt * PS, order=order, **scene.integrator_options())
+        out.append(("ase_spin", f"SuzukiTrotter order {order}", 1,
+                    *sampled(dyn.run, lambda atoms=atoms: get_spins(atoms))))
     n = scene.nos
     print(f"\n### energy over {steps} steps of 2^-10 ps = {dt * 1e3:.4g} fs "
           f"({steps * dt:.4g} ps), N = {n} spins, |E(0)|/N = {abs(e0) / n * 1e3:.3f} meV\n")

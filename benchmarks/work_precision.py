@@ -48,6 +48,8 @@ FCC_METHODS = [
     ("CollectivePRK order 4", "prk", {"order": 4}, [2.0, 1.5, 1.25, 1.0, 0.5, 0.25, 0.125]),
     ("CollectivePRK order 6", "prk", {"order": 6}, [2.0, 1.0, 0.5, 0.25, 0.125]),
     ("SuzukiTrotter (Cayley)", "st", {"rotation": "cayley"}, [0.5, 0.2, 0.1, 0.05, 0.025]),
+    ("SuzukiTrotter order 4 (Cayley)", "st", {"rotation": "cayley", "order": 4},
+     [4.0, 3.0, 2.0, 1.0, 0.5, 0.25, 0.125]),
     ("LAMMPS fix nve/spin", "lammps", {}, [0.5, 0.2, 0.1, 0.05, 0.025, 0.01, 0.0025]),
 ]
 CHAIN_METHODS = [

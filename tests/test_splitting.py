@@ -110,3 +110,30 @@ def _system(n):
 
     return System(Species.from_symbols(["Co"] * n), np.full(n, 1.72), np.eye(3) * 10.0,
                   np.array([True] * 3))
+
+
+@pytest.mark.parametrize("extra", ["exchange", "zeeman", "zeeman+dmi", "easy axis across"])
+def test_frozen_lattice_energy_to_round_off_when_fields_do_not_depend_on_the_spin(extra):
+    """Each rotation turns s_i about its own field B_i; where B_i does not depend
+    on s_i (exchange, a Zeeman field, DMI) it leaves s_i·B_i and so E unchanged:
+    at fixed positions the energy stays at round-off (docs/benchmarks.md,
+    "Against Spirit"). A uniaxial axis across the field makes B_i depend on s_i:
+    the energy then moves (dynamics.md: the splitting loses its order there)."""
+    from ase_spin.terms.anisotropy import UniaxialAnisotropy
+    from ase_spin.terms.dmi import DMI
+    from ase_spin.terms.zeeman import Zeeman
+
+    terms = {"exchange": [], "zeeman": [Zeeman(10.0, [0.0, 0.0, 1.0])],
+             "zeeman+dmi": [Zeeman(10.0, [0.0, 0.0, 1.0]), DMI(0.005, [0, 0, 1], rc=2.6)],
+             "easy axis across": [Zeeman(10.0, [0.0, 0.0, 1.0]),
+                                  UniaxialAnisotropy(0.01, [1.0, 0.0, 0.0])]}[extra]
+    atoms = fcc_cobalt(2, cone_deg=60, extra=terms)
+    s0 = ase_spin.get_spins(atoms).copy()
+    e0 = atoms.get_potential_energy()
+    SuzukiTrotter(atoms, 0.5 * units.fs, lattice="frozen", order=4).run(200)
+    assert np.abs(ase_spin.get_spins(atoms) - s0).max() > 0.1  # the spins did move
+    change = abs(atoms.get_potential_energy() - e0) / len(atoms)
+    if extra == "easy axis across":
+        assert change > 1e-6
+    else:
+        assert change < 1e-13
