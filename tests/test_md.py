@@ -366,8 +366,16 @@ def test_atoms_changed_between_runs_are_picked_up():
     dyn = CollectivePRK(a, 1 * units.fs)
     dyn.run(5)
     a.positions[3] += 0.05
+    a.arrays["momenta"][2] *= 1.5  # in place, as the positions: the step's snapshot sees it
     ase_spin.set_spins(a, ase_spin.scenes.cone(len(a), np.random.default_rng(3)),
                        magnitudes=1.72)
+    b = a.copy()
+    b.calc = SpinLatticeCalculator(ase_spin.scenes.fcc_cobalt_terms())
+    dyn.run(5)
+    run(b, 1 * units.fs, 5)
+    assert state_error(state(a), state(b)) < 1e-13
+    # a moment flipped in place
+    a.arrays["initial_magmoms"][1] *= -1.0
     b = a.copy()
     b.calc = SpinLatticeCalculator(ase_spin.scenes.fcc_cobalt_terms())
     dyn.run(5)

@@ -320,6 +320,13 @@ class SpinLatticeDynamics(MolecularDynamics):
                          a.cell.array.copy(), a.pbc.tolist(), a.numbers.copy(),
                          copy.deepcopy(a.constraints) if a.constraints else [],
                          self.ev.state_token)
+        # the buffers the next step's snapshot of positions, momenta and moments
+        # goes to (_commit: the ones held now stay intact for _restore)
+        shape = self._written[0].shape
+        self._spare = tuple(np.empty(shape) for _ in range(3))
+        # whether the snapshot's positions, momenta and moments are all (n, 3)
+        # float64 (only _commit's compiled pass sets it)
+        self._snapshot_rows = False
 
     def _in_sync(self):
         """True if the Atoms, their calculator and its terms are as this
@@ -333,13 +340,20 @@ class SpinLatticeDynamics(MolecularDynamics):
         arrays = a.arrays
         calc = self._calc
         # cheapest tests first: this runs before every step
-        return (a.calc is calc and calc.evaluator is self.ev
+        if not (a.calc is calc and calc.evaluator is self.ev
                 and self.ev.state_token == token and not self.ev.stale()
                 and len(a) == len(numbers) and a.pbc.tolist() == pbc
-                and _same(a.cell.array, cell)
-                and _same(arrays["positions"], pos)
-                and _same(arrays.get("momenta"), mom)
-                and _same(arrays.get("initial_magmoms"), mag)
+                and _same(a.cell.array, cell)):
+            return False
+        now = (arrays["positions"], arrays.get("momenta"), arrays.get("initial_magmoms"))
+        shape = pos.shape
+        if (self._snapshot_rows and _rows3(now[0], shape) and _rows3(now[1], shape)
+                and _rows3(now[2], shape)):
+            # the three arrays a step writes, in one compiled call
+            same = kernels.same_rows(now[0], pos, now[1], mom, now[2], mag)
+        else:
+            same = _same(now[0], pos) and _same(now[1], mom) and _same(now[2], mag)
+        return (same
                 and _same(arrays.get("masses"), masses)
                 and _same(arrays["numbers"], numbers)
                 and (not cons and not a.constraints or _equal(list(a.constraints), cons)))
@@ -412,12 +426,11 @@ class SpinLatticeDynamics(MolecularDynamics):
                 it, ng = self._substep(gamma * self.dt, stage, want_energy and stage == last)
                 iterations += it
                 geometries += ng
-            self._check_state_finite()
             if self.atoms.constraints:  # positions and momenta set by constraints: no carries
                 st = self._state
                 for carry in (st.carry_q, st.carry_p, st.carry_s):
                     carry[:] = 0.0
-            self._commit()
+            self._commit()  # checks that the state is finite first
             if count:
                 self.nsteps = nsteps + 1
         except BaseException:
@@ -434,21 +447,48 @@ class SpinLatticeDynamics(MolecularDynamics):
 
     def _check_state_finite(self):
         st = self._state
-        for name, x in (("positions", st.q), ("momenta", st.p), ("spins", st.s)):
+        for which, x in enumerate((st.q, st.p, st.s)):
             bad = kernels.first_nonfinite_row(x)
             if bad >= 0:
-                raise IntegrationError(
-                    f"the step gave non-finite {name} ({_name_atoms([bad])}) at step "
-                    f"{self.nsteps}: the forces or fields are not finite or the timestep "
-                    f"({self.dt / units.fs:.4g} fs) is far too large. The atoms keep the "
-                    f"state before this step.")
+                self._raise_nonfinite(which, bad)
+
+    def _raise_nonfinite(self, which, row):
+        name = ("positions", "momenta", "spins")[which]
+        raise IntegrationError(
+            f"the step gave non-finite {name} ({_name_atoms([row])}) at step "
+            f"{self.nsteps}: the forces or fields are not finite or the timestep "
+            f"({self.dt / units.fs:.4g} fs) is far too large. The atoms keep the "
+            f"state before this step.")
 
     def _commit(self):
-        """Write the new state into the Atoms: in place (so references to
+        """Write the new state into the Atoms, if it is finite (else
+        :class:`IntegrationError`, nothing written): in place (so references to
         ``atoms.positions`` stay live), float64 whatever dtype the user's arrays
         had (an integer or float32 array is replaced, not truncated)."""
         st = self._state
         arrays = self.atoms.arrays
+        written, spare = self._written, self._spare
+        shape = st.q.shape
+        pos, mom, mag = (arrays["positions"], arrays.get("momenta"),
+                         arrays.get("initial_magmoms"))
+        if (_rows3(pos, shape) and _rows3(mom, shape) and _rows3(written[1], shape)
+                and _rows3(mag, shape) and _rows3(written[2], shape)):
+            # the usual case, one compiled pass: the check, the writes and the
+            # snapshot _in_sync compares with next time, into the spare buffers
+            # (``written``'s stay as they are: the step's _restore may need them)
+            which, row = kernels.commit_state(st.q, st.p, st.s, st.mu, self.magnetic, pos, mom,
+                                              mag if self.magnetic else pos, *spare)
+            if which >= 0:
+                self._raise_nonfinite(which, row)
+            moments = spare[2] if self.magnetic else written[2]
+            self._spare = (written[0], written[1], written[2] if self.magnetic else spare[2])
+            # masses, cell, numbers, constraints: as at the last sync (a step
+            # does not change them)
+            self._written = (spare[0], spare[1], moments, *written[3:8], self.ev.state_token)
+            self._snapshot_rows = True
+            st.observables = None
+            return
+        self._check_state_finite()
         _write(arrays, "positions", st.q)
         _write(arrays, "momenta", st.p)
         if self.magnetic:
@@ -775,6 +815,17 @@ class SpinLatticeDynamics(MolecularDynamics):
 
 def _copy(a):
     return None if a is None else a.copy()
+
+
+_F64 = np.dtype(np.float64)
+
+
+def _rows3(a, shape):
+    """``a`` is a C-contiguous, writeable float64 array of ``shape`` ((n, 3)):
+    what the compiled commit and check take (the cheap tests first: this runs
+    at every step)."""
+    return (a is not None and a.dtype is _F64 and a.shape == shape
+            and a.flags.c_contiguous and a.flags.writeable)
 
 
 def _total_moment(moments):

@@ -50,7 +50,8 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     terms' pieces): CollectivePRK._coupled_step for one spin operator on a
     half pair list, no constraints, no energy wanted. Returns (status, q̃, p̃,
     s̃, carry of q̃, carry of s̃, F_L(q̃), W, the other W buffer, θ, sweeps,
-    geometries, how far the second solve moved W or −1); status 1: give up,
+    geometries, the predictor's order (below), how far the second solve moved W
+    or −1, the increment W − s for the predictor's history); status 1: give up,
     nothing but scratch buffers was written. The first solve stops at
     ``first_tol``, the others at ``tol`` (collective.first_tolerance).
     ``memory``, ``local``: the midpoint solver (kernels.midpoint_solve_half);
@@ -91,7 +92,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
         new_q = True  # as CollectivePRK: a new q̃ gets its couplings
         if first:
             if not moved <= half_skin:
-                return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle)
+                return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s)
             qtol = max(4.0 * _EPS * max(1.0, largest), qtol_floor)
             first = False
         elif apart <= qtol:
@@ -102,7 +103,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
         if new_q:
             # the pair list must stay valid at q̃ (else the general path rebuilds it)
             if not max_displacement(qt, reference)[0] <= half_skin:
-                return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle)
+                return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s)
             spin_geometry(qt, op_t, op_q)  # noqa: F821
             geometries += 1
         row, nbr, c = spin_couplings(op_t)  # noqa: F821
@@ -113,7 +114,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
             1, row, nbr, c, s, W, Wnext, stilde, scale, use_tol, floor, max_iter,
             min(1.0, 2.0 * theta), carry_s, carry, memory, local)
         if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch):
-            return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle)
+            return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s)
         if 0.0 <= measured < 1.0:  # observed (−1: none was)
             theta = measured
         if which == 1:
@@ -129,20 +130,22 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
             settled = True
             break
     if not settled:
-        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle)
+        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s)
     FLt = np.zeros_like(q)
     lattice_forces(qt, lattice, FLt)  # noqa: F821
     if not all_finite(FLt):
-        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle)
+        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s)
     F = FLt.copy()
     spin_forces(W, op_t, F)  # noqa: F821
     kick(P, 0.5 * h, F, carry_mid, P, carry_p)  # noqa: F821
     order = -1
+    increment = s  # (not used without the predictor)
     if predict and n_history > 0:
+        increment = W - s
         order = best_order(n_history, hs[0], hs[1], hs[2], hs[3], hs[4], hs[5],  # noqa: F821
-                           hs[6], hs[7], hs[8], hs[9], hs[10], hs[11], W - s, probe)
+                           hs[6], hs[7], hs[8], hs[9], hs[10], hs[11], increment, probe)
     return (_DONE, qt, P, stilde, carry_qt, carry, FLt, W, Wnext, theta, iterations,
-            geometries, order, settle)
+            geometries, order, settle, increment)
 
 
 def _both(positions, data, forces):
@@ -340,7 +343,7 @@ def collective_step(dyn, h, stage):
         n_history = 0
         coef = kernels._COEFFICIENTS[0]
     (status, qt, P, s_new, carry_q, carry_s, FL, W, Wnext, theta, iterations,
-     geometries, order, settle) = step(st.q, st.p, st.s, st.FL, dyn.masses[:, 0], h,
+     geometries, order, settle, increment) = step(st.q, st.p, st.s, st.FL, dyn.masses[:, 0], h,
                                        st.carry_q, st.carry_p, st.carry_s, st.carry_mid, W,
                                        st.Wnext, scale, dyn.tol,
                                        collective.first_tolerance(dyn.tol, st.settle[stage]),
@@ -356,10 +359,11 @@ def collective_step(dyn, h, stage):
     st.carry_q, st.carry_s = carry_q, carry_s
     if settle >= 0.0:
         st.settle[stage] = settle
-    if predict:  # CollectivePRK._remember_midpoint, its order found inside the step
+    if predict:  # CollectivePRK._remember_midpoint, order and increment W − s from the step
         st.predictor_order[stage] = order
-        oldest = history.popleft() if len(history) == history.maxlen else None
-        history.append(kernels.increment(W, st.s, oldest))
+        if len(history) == history.maxlen:
+            history.popleft()
+        history.append(increment)
     else:
         dyn._remember_midpoint(stage, W)
     st.q, st.p, st.s = qt, P, s_new

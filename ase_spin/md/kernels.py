@@ -880,6 +880,55 @@ def same(a, b):
 
 
 @nb.njit(cache=True)
+def same_rows(a0, b0, a1, b1, a2, b2):
+    """(a0, a1, a2) hold the same values as (b0, b1, b2) (pairs of (n, 3)
+    arrays of equal shapes): the integrators' check that the Atoms' positions,
+    momenta and moments are as the last step wrote them, in one call."""
+    differ = False
+    for a, b in ((a0, b0), (a1, b1), (a2, b2)):
+        x = np.ascontiguousarray(a).reshape(-1)
+        y = np.ascontiguousarray(b).reshape(-1)
+        for k in range(x.shape[0]):
+            differ |= x[k] != y[k]  # no branch per element: SIMD lanes
+    return not differ
+
+
+@nb.njit(cache=True)
+def commit_state(q, p, s, mu, magnetic, positions, momenta, moments, copy_q, copy_p, copy_m):
+    """Write a finished step into the Atoms' arrays and into the snapshot
+    buffers ``copy_*`` in one pass: positions = q, momenta = p and, if
+    ``magnetic``, moments = μ_i s_i — but only if q, p and s are all finite.
+    Returns (which, row): (−1, −1) when written, else nothing was written and
+    ``which`` (0 positions, 1 momenta, 2 spins) and ``row`` locate the first
+    NaN or inf."""
+    nonfinite = False
+    for a in (q, p, s):
+        flat = np.ascontiguousarray(a).reshape(-1)
+        for k in range(flat.shape[0]):
+            # x − x is 0 for finite x, NaN for ±inf and NaN: no branch per element
+            nonfinite |= (flat[k] - flat[k]) != 0.0
+    if nonfinite:
+        for which, a in enumerate((q, p, s)):
+            row = first_nonfinite_row(a)
+            if row >= 0:
+                return which, row
+    # flat views indexed from 0: loops LLVM runs on SIMD lanes (all C-contiguous)
+    qf = np.ascontiguousarray(q).reshape(-1)
+    pf = np.ascontiguousarray(p).reshape(-1)
+    sf = np.ascontiguousarray(s).reshape(-1)
+    xf, vf, mf = positions.reshape(-1), momenta.reshape(-1), moments.reshape(-1)
+    cq, cp, cm = copy_q.reshape(-1), copy_p.reshape(-1), copy_m.reshape(-1)
+    for k in range(qf.shape[0]):
+        xf[k] = cq[k] = qf[k]
+        vf[k] = cp[k] = pf[k]
+    if magnetic:
+        for i in range(s.shape[0]):
+            for c in range(3):
+                mf[3 * i + c] = cm[3 * i + c] = mu[i] * sf[3 * i + c]
+    return -1, -1
+
+
+@nb.njit(cache=True)
 def first_nonfinite_row(a):
     """Index of the first row of a 2-D array holding a NaN or inf, else −1."""
     for i in range(a.shape[0]):
