@@ -158,17 +158,20 @@ def _rows(a, lo, m):
 
 
 @threaded()
-def bath_block(s, before, B, k1, sigma, key, k2, magnetic):
+def bath_block(s, before, B, k1, sigma, key, k2, magnetic, origin):
     """The spin bath between two collective steps, in place, per magnetic spin:
     s ← D_B(k2) N(σ, ξ) D_B(k1) s (:func:`_damped` with a = k|B_i|,
     :func:`_diffused`; k = κ_i t per spin, 0: no damping; σ_i = 0: no noise;
     ξ_i = Gaussian numbers 2i, 2i + 1 of stream ``key``), the state before the
-    last D written to ``before``."""
+    last D written to ``before``, the spins as they were to ``origin``."""
     n = s.shape[0]
     for blk in nb.prange((n + BLOCK - 1) // BLOCK):
         lo = blk * BLOCK
         m = min(n, lo + BLOCK) - lo
         sf, bf, Bf = _rows(s, lo, m), _rows(before, lo, m), _rows(B, lo, m)
+        of = _rows(origin, lo, m)
+        for j in range(3 * m):
+            of[j] = sf[j]
         kk1, kk2, sig, mag = k1[lo:lo + m], k2[lo:lo + m], sigma[lo:lo + m], magnetic[lo:lo + m]
         xi = np.zeros(2 * m)
         noisy = False
@@ -252,18 +255,27 @@ def damp_from(start, B, k, magnetic, out):
 
 
 @threaded()
-def bath_jumps(y, y0, origin, B, c, kick, jump):
+def bath_jumps(y, y0, origin, B, c, kick, jump, B_origin):
     """What the predictor and the bath energy need from a bath (per row, rows
     without spin 0): jump = y − origin (the bath's whole move) and kick =
     (y − y0) + c_i y × B (the move since the fields B were taken at y0, plus
     the explicit half step of precession in them: C·kick is the field change
-    the midpoint sees, for a term B = C s)."""
+    the midpoint sees, for a term B = C s). Returns Σ_i jump_i·B_origin,i
+    (summed per block of rows, the blocks in order: the same for any thread
+    count)."""
     n = y.shape[0]
-    for blk in nb.prange((n + BLOCK - 1) // BLOCK):
+    nblocks = (n + BLOCK - 1) // BLOCK
+    part = np.zeros(nblocks)
+    for blk in nb.prange(nblocks):
         lo = blk * BLOCK
         m = min(n, lo + BLOCK) - lo
         yf, af, of, Bf = _rows(y, lo, m), _rows(y0, lo, m), _rows(origin, lo, m), _rows(B, lo, m)
         kf, jf, cc = _rows(kick, lo, m), _rows(jump, lo, m), c[lo:lo + m]
+        bo = _rows(B_origin, lo, m)
+        dot = 0.0
+        for j in range(3 * m):
+            dot += (yf[j] - of[j]) * bo[j]
+        part[blk] = dot
         for j in range(m):
             x, yy, z = yf[3 * j], yf[3 * j + 1], yf[3 * j + 2]
             bx, by, bz = Bf[3 * j], Bf[3 * j + 1], Bf[3 * j + 2]
@@ -273,6 +285,10 @@ def bath_jumps(y, y0, origin, B, c, kick, jump):
             jf[3 * j] = x - of[3 * j]
             jf[3 * j + 1] = yy - of[3 * j + 1]
             jf[3 * j + 2] = z - of[3 * j + 2]
+    total = 0.0
+    for blk in range(nblocks):
+        total += part[blk]
+    return total
 
 
 def noise_amplitude(d_tau):
@@ -581,6 +597,7 @@ class Langevin(CollectivePRK):
         # the predictor's history of midpoint remainders W − W₀ (see _predict)
         st.increments = deque(maxlen=4)
         st.increment_order = 0
+        st.remainder_spare = None  # a buffer for the next remainder
         st.s_start = st.s
         st.B_start = None  # the predictor's field at s_start (_opening_bath), if known
         st.B_next = None  # that field, from the bath before the collective step
@@ -593,6 +610,7 @@ class Langevin(CollectivePRK):
         # (see bath_jumps); the spins' next buffer
         st.s_origin, st.jump, st.kick = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
         st.s_spare = np.zeros((n, 3))
+        st.p_spare = None
         st.no_damping = np.zeros(n)
 
     def _coefficients(self):
@@ -713,8 +731,7 @@ class Langevin(CollectivePRK):
         if not noisy:
             sigma = st.no_damping
         mag = self.ev.magnetic
-        np.copyto(st.s_origin, st.s)
-        bath_block(st.s, st.s_before, start.B, k1, sigma, key, 0.5 * kappa_h, mag)
+        bath_block(st.s, st.s_before, start.B, k1, sigma, key, 0.5 * kappa_h, mag, st.s_origin)
         # y₀ = D_{B0}(h/2) c is in st.s; the fields at y₀ give the corrector
         B1 = self._spin_energy_fields(energy=False).B
         y0, y = st.s, st.s_spare
@@ -726,7 +743,7 @@ class Langevin(CollectivePRK):
             self.bath_energy_spin += end.energy - start.energy
             st.B_next = end.B
             return
-        bath_jumps(y, y0, st.s_origin, B1, c, st.kick, st.jump)
+        moved = bath_jumps(y, y0, st.s_origin, B1, c, st.kick, st.jump, start.B_linear)
         B = B1  # B(y₀) + C k, below
         form = 0.0
         others = 0.0
@@ -737,8 +754,7 @@ class Langevin(CollectivePRK):
                                                       coupling, pairs.half, st.kick, st.jump, B)
             else:
                 others += op.add(y, _E, _NO_FORCES, _NO_FORCES, _NO_ENERGIES)[0]
-        self.bath_energy_spin += (-float(np.einsum("ij,ij->", st.jump, start.B_linear))
-                                  - 0.5 * form + (others - start.E_other))
+        self.bath_energy_spin += -moved - 0.5 * form + (others - start.E_other)
         st.B_next = B
 
     def _closing_bath(self):
@@ -747,7 +763,9 @@ class Langevin(CollectivePRK):
         takes over (see :meth:`_step`)."""
         st = self._state
         on = self._spin_bath_on()
-        EB = self._spin_energy_fields() if on else None
+        # put off: the next opening half takes the exchange energy from δ·B and
+        # δ·Cδ (see _opening_bath), not from E here
+        EB = self._spin_energy_fields(linear_energy=not self._defer) if on else None
         if self._defer:
             st.pending = EB
             st.EB = EB
@@ -762,7 +780,7 @@ class Langevin(CollectivePRK):
         else:
             sigma = st.no_damping
         bath_block(st.s, st.s_before, EB.B, 0.5 * kappa_h, sigma, key, st.no_damping,
-                   self.ev.magnetic)
+                   self.ev.magnetic, st.s_origin)
         st.carry_s[:] = 0.0
         st.EB = self._spin_energy_fields()
         self.bath_energy_spin += st.EB.energy - EB.energy
@@ -801,7 +819,10 @@ class Langevin(CollectivePRK):
         if st.B_start is None or not self._spin_bath_on():
             history.clear()
             return
-        R = np.empty_like(W)
+        R = st.remainder_spare
+        if R is None or R.shape != W.shape:
+            R = np.empty_like(W)
+        st.remainder_spare = None
         if st.known_for is st.s_start:
             np.subtract(W, st.known, out=R)
         else:
@@ -809,10 +830,13 @@ class Langevin(CollectivePRK):
         st.known_for = None
         if history:
             st.increment_order = kernels.best_extrapolation_order(history, R, st.probe)
+        if len(history) == history.maxlen:  # the one that drops out: the next R's buffer
+            st.remainder_spare = history.popleft()
         history.append(R)
 
-    def _spin_energy_fields(self, energy=True):
-        """:class:`_SpinFields` at the current spins: one pass.
+    def _spin_energy_fields(self, energy=True, linear_energy=True):
+        """:class:`_SpinFields` at the current spins: one pass (``linear_energy``
+        False: E_linear left NaN, for a caller that does not use it).
 
         Operators of the form B_i = Σ_j c_ij s_j (``linear_pairs``: exchange)
         give their fields alone, and their energy as −½ Σ_i s_i·B_i: the
@@ -832,7 +856,9 @@ class Langevin(CollectivePRK):
         E_linear = E_other = 0.0
         if len(others) < len(st.ops):
             linear = B.copy() if others else B
-            if energy:
+            if not linear_energy:
+                E_linear = np.nan
+            elif energy:
                 E_linear = -0.5 * float(np.einsum("ij,ij->", s, B))
         want = _EB if energy else _B
         for op in others:
@@ -847,7 +873,10 @@ class Langevin(CollectivePRK):
             return
         c1 = np.exp(-self.fr * tau)
         c2 = np.sqrt(-np.expm1(-2.0 * self.fr * tau) * self.temp)
-        p = np.empty_like(st.p)
+        # the momenta before the last bath: nothing refers to them any more
+        p = st.p_spare if st.p_spare is not None and st.p_spare.shape == st.p.shape else None
+        if p is None or p is st.p:
+            p = np.empty_like(st.p)
         m = self.masses[:, 0]
         dK = ornstein_uhlenbeck(st.p, new_key(self.rng), m, c1, c2, self.fix_com, p)
         if self.atoms.constraints:
@@ -855,7 +884,7 @@ class Langevin(CollectivePRK):
             p = self._adjust_momenta(p, st.q)
             dK = 0.5 * float(np.einsum("ij,ij->", p, p / self.masses)) - K0
         self.bath_energy_lattice += dK
-        st.p = p
+        st.p_spare, st.p = st.p, p
         st.carry_p[:] = 0.0
 
     # -- observables -----------------------------------------------------------------
