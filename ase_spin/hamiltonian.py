@@ -260,16 +260,20 @@ class Evaluator:
         return ev
 
     @_sized
-    def spin_operators(self, positions, virial=False, out=None, mean_with=None, half=False):
+    def spin_operators(self, positions, virial=False, out=None, mean_with=None, half=False,
+                       refreshed=False):
         """Every spin term prepared at ``positions`` (a list of
         :class:`~ase_spin.terms.base.SpinOperator`, one per spin term).
         ``out``: a previous result whose buffers are reused; ``mean_with``: the
         operators at the other end of a step, on the same pair lists, for the
         midpoint field ``field(W, out, mean=True)``. ``half``: pair terms on the
         half pair list (each pair once: half the work and memory; passes over
-        it scatter into per-thread buffers) rather than the full one."""
+        it scatter into per-thread buffers) rather than the full one.
+        ``refreshed``: the caller has just called :meth:`refresh` with these
+        positions (the pair lists' check, a pass over the atoms, is not repeated)."""
         positions = _as_positions(positions, self.natoms)
-        self.refresh(positions)
+        if not refreshed:
+            self.refresh(positions)
         ops = []
         k = 0
         for t, table in zip(self.hamiltonian.terms, self._tables):

@@ -269,7 +269,7 @@ class CollectivePRK(SpinLatticeDynamics):
                 if ev.refresh(qt):  # a new pair list: the operators at q must use it too
                     st.ops = ev.spin_operators(q, out=st.ops, half=self.half_lists)
                 st.ops_next = ev.spin_operators(qt, out=st.ops_next, mean_with=st.ops,
-                                                half=self.half_lists)
+                                                half=self.half_lists, refreshed=True)
                 geometries += 1
             tol = first_tol if solves == 0 else self.tol
             W, s_new, its, moved, carry_s = self._solve(s, st.ops_next, W, h, stage, tol=tol)

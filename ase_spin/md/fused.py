@@ -143,7 +143,8 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     if predict and n_history > 0:
         increment = W - s
         order = best_order(n_history, hs[0], hs[1], hs[2], hs[3], hs[4], hs[5],  # noqa: F821
-                           hs[6], hs[7], hs[8], hs[9], hs[10], hs[11], increment, probe)
+                           hs[6], hs[7], hs[8], hs[9], hs[10], hs[11], increment, probe,
+                           probe)
     return (_DONE, qt, P, stilde, carry_qt, carry, FLt, W, Wnext, theta, iterations,
             geometries, order, settle, increment)
 

@@ -814,17 +814,17 @@ def best_extrapolation_order(history, W, rows, base=None):
     """The extrapolation order that would have predicted ``W`` (``W − base``
     with a base) best from ``history``, judged on a sample of ``rows`` (only
     those rows are read: no array of the system's size is made)."""
-    picked = np.arange(len(rows))
     D = W[rows] if base is None else W[rows] - base[rows]
     n = min(len(history), PREDICTOR_DEPTH)
-    # each increment sampled once; _last's padding repeats the newest
-    taken = [h[rows] for h in _last(history)[:n]]
-    return _best_order(n, *taken, *taken[:1] * (PREDICTOR_DEPTH - n), D, picked)
+    # the increments read at the sampled rows inside the kernel (no copies);
+    # _last's padding repeats the newest
+    return _best_order(n, *_last(history), D, rows, np.arange(len(rows)))
 
 
 @nb.njit(cache=True)
-def _best_order(n, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, W, rows):
-    """The order 0 … n−1 with the smallest max error over ``rows``, all orders
+def _best_order(n, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, W, rows, w_rows):
+    """The order 0 … n−1 with the smallest max error over ``rows`` of the
+    increments h (W at its rows ``w_rows``: the same sample), all orders
     from one backward-difference table (Newton's form: order k predicts
     Σ_{j≤k} ∇^j h_0, the polynomial of :func:`extrapolate`'s coefficients),
     the sampled values side by side (loops that vectorise)."""
@@ -833,6 +833,7 @@ def _best_order(n, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, W, rows):
     w = np.empty(m)
     for a in range(len(rows)):
         r = rows[a]
+        rw = w_rows[a]
         for c in range(3):
             D[0, 3 * a + c] = h0[r, c]
             D[1, 3 * a + c] = h1[r, c]
@@ -846,7 +847,7 @@ def _best_order(n, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, W, rows):
             D[9, 3 * a + c] = h9[r, c]
             D[10, 3 * a + c] = h10[r, c]
             D[11, 3 * a + c] = h11[r, c]
-            w[3 * a + c] = W[r, c]
+            w[3 * a + c] = W[rw, c]
     prediction = D[0].copy()
     best = np.inf
     order = 0
