@@ -472,7 +472,9 @@ class SpinLatticeDynamics(MolecularDynamics):
         pos, mom, mag = (arrays["positions"], arrays.get("momenta"),
                          arrays.get("initial_magmoms"))
         if (_rows3(pos, shape) and _rows3(mom, shape) and _rows3(written[1], shape)
-                and _rows3(mag, shape) and _rows3(written[2], shape)):
+                and _rows3(mag, shape) and _rows3(written[2], shape)
+                and st.q.flags.c_contiguous and st.p.flags.c_contiguous
+                and st.s.flags.c_contiguous):
             # the usual case, one compiled pass: the check, the writes and the
             # snapshot _in_sync compares with next time, into the spare buffers
             # (``written``'s stay as they are: the step's _restore may need them)

@@ -882,15 +882,15 @@ def same(a, b):
 
 @nb.njit(cache=True)
 def same_rows(a0, b0, a1, b1, a2, b2):
-    """(a0, a1, a2) hold the same values as (b0, b1, b2) (pairs of (n, 3)
-    arrays of equal shapes): the integrators' check that the Atoms' positions,
-    momenta and moments are as the last step wrote them, in one call."""
+    """(a0, a1, a2) hold the same values as (b0, b1, b2) (pairs of C-contiguous
+    (n, 3) arrays of equal shapes): the integrators' check that the Atoms'
+    positions, momenta and moments are as the last step wrote them, in one
+    call. Flat views and no branch per element: SIMD lanes."""
+    x0, y0, x1, y1 = a0.reshape(-1), b0.reshape(-1), a1.reshape(-1), b1.reshape(-1)
+    x2, y2 = a2.reshape(-1), b2.reshape(-1)
     differ = False
-    for a, b in ((a0, b0), (a1, b1), (a2, b2)):
-        x = np.ascontiguousarray(a).reshape(-1)
-        y = np.ascontiguousarray(b).reshape(-1)
-        for k in range(x.shape[0]):
-            differ |= x[k] != y[k]  # no branch per element: SIMD lanes
+    for k in range(x0.shape[0]):
+        differ |= (x0[k] != y0[k]) | (x1[k] != y1[k]) | (x2[k] != y2[k])
     return not differ
 
 
@@ -901,22 +901,23 @@ def commit_state(q, p, s, mu, magnetic, positions, momenta, moments, copy_q, cop
     ``magnetic``, moments = μ_i s_i — but only if q, p and s are all finite.
     Returns (which, row): (−1, −1) when written, else nothing was written and
     ``which`` (0 positions, 1 momenta, 2 spins) and ``row`` locate the first
-    NaN or inf."""
+    NaN or inf. All arrays C-contiguous (n, 3), ``mu`` (n,): flat views
+    indexed from 0 and no branch per element, so that the loops run on SIMD
+    lanes."""
+    qf, pf, sf = q.reshape(-1), p.reshape(-1), s.reshape(-1)
     nonfinite = False
-    for a in (q, p, s):
-        flat = np.ascontiguousarray(a).reshape(-1)
-        for k in range(flat.shape[0]):
-            # x − x is 0 for finite x, NaN for ±inf and NaN: no branch per element
-            nonfinite |= (flat[k] - flat[k]) != 0.0
+    for k in range(qf.shape[0]):
+        # x − x is 0 for finite x, NaN for ±inf and NaN
+        nonfinite |= (((qf[k] - qf[k]) != 0.0) | ((pf[k] - pf[k]) != 0.0)
+                      | ((sf[k] - sf[k]) != 0.0))
     if nonfinite:
-        for which, a in enumerate((q, p, s)):
-            row = first_nonfinite_row(a)
-            if row >= 0:
-                return which, row
-    # flat views indexed from 0: loops LLVM runs on SIMD lanes (all C-contiguous)
-    qf = np.ascontiguousarray(q).reshape(-1)
-    pf = np.ascontiguousarray(p).reshape(-1)
-    sf = np.ascontiguousarray(s).reshape(-1)
+        row = first_nonfinite_row(q)
+        if row >= 0:
+            return 0, row
+        row = first_nonfinite_row(p)
+        if row >= 0:
+            return 1, row
+        return 2, first_nonfinite_row(s)
     xf, vf, mf = positions.reshape(-1), momenta.reshape(-1), moments.reshape(-1)
     cq, cp, cm = copy_q.reshape(-1), copy_p.reshape(-1), copy_m.reshape(-1)
     for k in range(qf.shape[0]):
