@@ -743,7 +743,7 @@ class Langevin(CollectivePRK):
             self.bath_energy_spin += end.energy - start.energy
             st.B_next = end.B
             return
-        moved = bath_jumps(y, y0, st.s_origin, B1, c, st.kick, st.jump, start.B_linear)
+        jump_field = bath_jumps(y, y0, st.s_origin, B1, c, st.kick, st.jump, start.B_linear)
         B = B1  # B(y₀) + C k, below
         form = 0.0
         others = 0.0
@@ -754,7 +754,7 @@ class Langevin(CollectivePRK):
                                                       coupling, pairs.half, st.kick, st.jump, B)
             else:
                 others += op.add(y, _E, _NO_FORCES, _NO_FORCES, _NO_ENERGIES)[0]
-        self.bath_energy_spin += -moved - 0.5 * form + (others - start.E_other)
+        self.bath_energy_spin += -jump_field - 0.5 * form + (others - start.E_other)
         st.B_next = B
 
     def _closing_bath(self):
