@@ -321,9 +321,13 @@ class SpinLatticeDynamics(MolecularDynamics):
                          copy.deepcopy(a.constraints) if a.constraints else [],
                          self.ev.state_token)
         # the buffers the next step's snapshot of positions, momenta and moments
-        # goes to (_commit: the ones held now stay intact for _restore)
+        # goes to (_commit: the ones held now stay intact for _restore); kept
+        # while the size holds (this also runs after every step that cannot
+        # take the compiled commit, e.g. without moments)
         shape = self._written[0].shape
-        self._spare = tuple(np.empty(shape) for _ in range(3))
+        spare = getattr(self, "_spare", None)
+        if spare is None or spare[0].shape != shape:
+            self._spare = tuple(np.empty(shape) for _ in range(3))
         # whether the snapshot's positions, momenta and moments are all (n, 3)
         # float64 (only _commit's compiled pass sets it)
         self._snapshot_rows = False
