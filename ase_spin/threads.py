@@ -356,9 +356,10 @@ class AdaptiveThreads:
             return False
         return True
 
-    def _record(self, n, elapsed):
-        self.seen[n] = self.seen.get(n, 0) + 1
-        self.steps += 1
+    def _record(self, n, elapsed, steps=1):
+        """Judge a step time ``elapsed`` (s; of each of ``steps`` steps taken together)."""
+        self.seen[n] = self.seen.get(n, 0) + steps
+        self.steps += steps
         if self.steps <= WARMUP:  # compilation, the predictor's history filling
             return
         recent = self._recent.setdefault(n, [])
@@ -388,7 +389,7 @@ class AdaptiveThreads:
         # barrier for a time slice): keep such probes under 1/PROBE_BUDGET of
         # the wall time
         self._next_probe = max(self._next_probe, time.perf_counter() + self._interval,
-                               time.perf_counter() + PROBE_BUDGET * elapsed)
+                               time.perf_counter() + PROBE_BUDGET * elapsed * steps)
 
     def step(self, natoms):
         """``with adaptive.step(natoms):`` runs one step inside: sets the thread
@@ -406,14 +407,18 @@ class _Step:
     """The context of :meth:`AdaptiveThreads.step` (a class: a generator's
     overhead shows in the steps of a small system)."""
 
-    __slots__ = ("adaptive", "n", "previous", "sized", "t0")
+    __slots__ = ("adaptive", "n", "previous", "sized", "t0", "steps", "probing")
 
     def __init__(self, adaptive, natoms):
         self.adaptive = adaptive
         self.sized = threads_for(natoms)
+        # steps taken inside (several: a block of small-system steps, timed per step)
+        self.steps = 1
 
     def __enter__(self):
         self.n = n = self.adaptive._choose()
+        # a probe of another thread count: one step, not a block of them
+        self.probing = self.adaptive._probing
         self.previous = previous = nb.get_num_threads()
         if n != previous:
             nb.set_num_threads(n)
@@ -428,5 +433,7 @@ class _Step:
         if exc_type is None:
             adaptive = self.adaptive
             adaptive.choice = self.n
-            adaptive._record(self.n, time.perf_counter() - self.t0)
+            if self.steps > 0:
+                adaptive._record(self.n, (time.perf_counter() - self.t0) / self.steps,
+                                 self.steps)
         return False

@@ -64,7 +64,7 @@ def _exercise(atoms, dyn):
 
         saved, fused.FUSE_AFTER_STEPS = fused.FUSE_AFTER_STEPS, 0
         try:
-            dyn.run(2)
+            dyn.run(4)  # the first step alone, then a block (fused.collective_block)
         finally:
             fused.FUSE_AFTER_STEPS = saved
         # and a step that ends in a frame (a trajectory, any observer but the

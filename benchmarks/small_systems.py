@@ -32,7 +32,12 @@ def measure(blocks=15):
     from ase import units
 
     from ase_spin import CollectivePRK, Want
+    from ase_spin.md import fused
     from ase_spin.scenes import fcc_cobalt, paper_chain
+
+    # the compiled small-system paths whatever the run's length (a short run
+    # does not compile them: md/fused.py), compiled in the warm-up below
+    fused.FUSE_AFTER_STEPS = 0
 
     want = Want(energy=True, forces=True, magnetic_forces=True)
     scenes = {

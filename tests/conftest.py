@@ -58,3 +58,36 @@ def structures():
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
+
+
+def general_path_only(monkeypatch):
+    """Send every CollectivePRK step of a small system down the general path:
+    neither the fused step nor blocks of them (ase_spin.md.fused)."""
+    from ase_spin.md import fused
+
+    monkeypatch.setattr(fused, "collective_step", lambda *args: None)
+    monkeypatch.setattr(fused, "collective_block", lambda *args: (0, 0, 0, 0))
+
+
+def spy_fused(monkeypatch):
+    """Count the fused steps taken (one per stage; a block's steps counted as
+    such) and given up."""
+    from ase_spin.md import fused
+
+    used = {"done": 0, "general": 0, "blocks": 0}
+    step, block = fused.collective_step, fused.collective_block
+
+    def spy_step(*args):
+        result = step(*args)
+        used["done" if result is not None else "general"] += 1
+        return result
+
+    def spy_block(*args):
+        result = block(*args)
+        used["done"] += result[0]
+        used["blocks"] += result[0] > 0
+        return result
+
+    monkeypatch.setattr(fused, "collective_step", spy_step)
+    monkeypatch.setattr(fused, "collective_block", spy_block)
+    return used

@@ -330,16 +330,10 @@ def fused_steps(monkeypatch):
     """Let N = 108 take the fused step in a short run (as tests/test_small_systems.py),
     and count the fused steps taken."""
     monkeypatch.setattr(fused, "FUSE_AFTER_STEPS", 0)
-    taken = [0]
-    real = fused.collective_step
+    from conftest import spy_fused
 
-    def spy(*args):
-        result = real(*args)
-        taken[0] += result is not None
-        return result
-
-    monkeypatch.setattr(fused, "collective_step", spy)
-    return taken
+    used = spy_fused(monkeypatch)
+    return used
 
 
 @pytest.mark.parametrize("form", FORMS)
@@ -360,7 +354,7 @@ def test_run_equals_stored_pair_vectors_bitwise(n, steps, stress, langevin, form
         runs.append(_run(_scene(n, term), steps, stress, langevin=langevin))
         if term.__class__ is Exchange:
             # the fused step takes operators keeping G and no positions only
-            assert (fused_steps[0] > 0) == (n == 3 and not stress and form == "G")
+            assert (fused_steps["done"] > 0) == (n == 3 and not stress and form == "G")
     assert (len(runs[0]) > 5) == stress
     for a, b in zip(*runs):
         assert np.array_equal(a, b)

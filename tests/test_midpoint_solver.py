@@ -224,10 +224,10 @@ def test_auto_solver_keeps_jacobi_while_it_contracts_fast(fused, monkeypatch):
     three-sweep solve saw it above 0.4 and switched to Anderson for good:
     after ~40 steps, before the fix). Both the general and the fused
     small-system step."""
-    from ase_spin.md import fused as fused_step
+    from conftest import general_path_only
 
     if not fused:
-        monkeypatch.setattr(fused_step, "collective_step", lambda *a: None)
+        general_path_only(monkeypatch)
     dyn = CollectivePRK(fcc_cobalt(2), 0.1 * units.fs)
     dyn.run(150)
     st = dyn._state

@@ -15,6 +15,8 @@ from ase_spin.neighbors import max_displacement
 from ase_spin.scenes import fcc_cobalt, field_anisotropy_terms, paper_chain, paper_chain_terms
 from ase_spin.terms import Cubic, Exchange, LennardJones, lennard_jones
 
+from conftest import general_path_only, spy_fused
+
 
 @pytest.fixture(autouse=True)
 def _fuse_short_runs(monkeypatch):
@@ -123,7 +125,7 @@ def test_fast_step_equals_general_step_bitwise(scene, fast, general, monkeypatch
     runs = []
     for cls in (fast, general):
         if cls is general:
-            monkeypatch.setattr(fused, "collective_step", lambda *args: None)
+            general_path_only(monkeypatch)
         if scene == "chain":
             atoms = paper_chain()
             runs.append(_trajectory(cls, atoms, 2.0**-6, 60, hbar=1.0, precession="spin"))
@@ -141,16 +143,7 @@ def test_fast_step_equals_general_step_bitwise(scene, fast, general, monkeypatch
 
 def _spy_fused(monkeypatch):
     """Count the fused steps taken and given up."""
-    used = {"done": 0, "general": 0}
-    real = fused.collective_step
-
-    def spy(*args):
-        result = real(*args)
-        used["done" if result is not None else "general"] += 1
-        return result
-
-    monkeypatch.setattr(fused, "collective_step", spy)
-    return used
+    return spy_fused(monkeypatch)
 
 
 class _PlainLJ(LennardJones):
@@ -208,7 +201,7 @@ def test_fused_step_composes_several_lattice_terms(monkeypatch):
     used = _spy_fused(monkeypatch)
     for general in (False, True):
         if general:
-            monkeypatch.setattr(fused, "collective_step", lambda *args: None)
+            general_path_only(monkeypatch)
         atoms = paper_chain()
         atoms.calc = SpinLatticeCalculator([half, LennardJones(0.5 * lj.epsilon, lj.sigma,
                                                                lj.rc), exchange])
@@ -228,7 +221,7 @@ def test_fused_step_gives_up_where_the_general_path_must_act(monkeypatch):
     runs = []
     for general in (False, True):
         if general:
-            monkeypatch.setattr(fused, "collective_step", lambda *args: None)
+            general_path_only(monkeypatch)
         atoms = fcc_cobalt(2)
         atoms.calc = SpinLatticeCalculator(atoms.calc.hamiltonian.terms, skin=0.015)
         dyn = CollectivePRK(atoms, 0.5 * units.fs)
@@ -345,7 +338,7 @@ def test_langevin_takes_the_fused_step_with_its_own_predictor(n, monkeypatch):
     runs = []
     for general in (False, True):
         if general:
-            monkeypatch.setattr(fused, "collective_step", lambda *args: None)
+            general_path_only(monkeypatch)
         atoms = fcc_cobalt(n)
         dyn = Langevin(atoms, 0.5 * units.fs, 300.0, spin_damping=0.1,
                        friction=0.01 / units.fs, rng=3)
@@ -378,3 +371,91 @@ def test_fused_step_above_tiny_threads_its_heavy_pieces_same_bits_any_threads(mo
     assert used["done"] > 5 * used["general"]  # the general path: each run's first step
     for a, b in zip(*runs):
         assert np.array_equal(a, b)
+
+
+def _state_of(atoms, dyn):
+    return (atoms.positions.copy(), atoms.get_momenta(), get_spins(atoms), dyn.nsteps,
+            dyn.get_time(), dyn.total_iterations, dyn.total_steps)
+
+
+@pytest.mark.parametrize("scene, order", [("chain", 2), ("chain", 4), ("chain", 6),
+                                          ("fcc", 2), ("fcc", 4)])
+def test_run_in_blocks_equals_step_by_step_bitwise(scene, order, monkeypatch):
+    """run() takes the steps between observers as blocks of compiled steps
+    (fused.collective_block); every state it writes — the final one and the
+    frames an observer every 7 steps sees — is bit for bit that of the
+    same steps taken one at a time by the general path, with the same
+    counters (steps, time, sweeps)."""
+    used = _spy_fused(monkeypatch)
+    results = []
+    for blocks in (True, False):
+        if not blocks:
+            general_path_only(monkeypatch)
+        if scene == "chain":
+            atoms = paper_chain()
+            dyn = CollectivePRK(atoms, 2.0**-6, hbar=1.0, precession="spin", order=order)
+        else:
+            atoms = fcc_cobalt(3)
+            dyn = CollectivePRK(atoms, 0.2 * units.fs, order=order)
+        frames = []
+        dyn.attach(lambda: frames.append((dyn.nsteps, atoms.positions.copy(),
+                                          get_spins(atoms))), interval=7)
+        dyn.run(30)
+        dyn.run(12)  # a second run continues the first
+        results.append((_state_of(atoms, dyn), frames))
+    assert used["blocks"] >= 4
+    (end_a, frames_a), (end_b, frames_b) = results
+    for a, b in zip(end_a, end_b):
+        assert np.array_equal(a, b)
+    assert [f[0] for f in frames_a] == [0, 7, 14, 21, 28, 35, 42] == [f[0] for f in frames_b]
+    for fa, fb in zip(frames_a, frames_b):
+        for a, b in zip(fa[1:], fb[1:]):
+            assert np.array_equal(a, b)
+
+
+def test_block_gives_up_at_a_later_stage_and_the_general_path_goes_on(monkeypatch):
+    """Order 4 with a small skin: pair-list rebuilds make a block stop, also
+    at a stage after the first, where the step is undone to its start (the
+    operator at q prepared again). The run is bit for bit that of the
+    general path."""
+    failed = []
+    real = fused._runner
+
+    def spy_runner(step):
+        run = real(step)
+
+        def wrapped(*args):
+            result = run(*args)
+            failed.append(result[1])
+            return result
+
+        wrapped.overloads = run.overloads
+        wrapped._cache = run._cache
+        return wrapped
+
+    monkeypatch.setattr(fused, "_runner", spy_runner)
+    runs = []
+    for general in (False, True):
+        if general:
+            general_path_only(monkeypatch)
+        atoms = fcc_cobalt(2)
+        atoms.calc = SpinLatticeCalculator(atoms.calc.hamiltonian.terms, skin=0.02)
+        dyn = CollectivePRK(atoms, 0.5 * units.fs, order=4)
+        dyn.run(60)
+        runs.append(_state_of(atoms, dyn) + (dyn.ev.neighbors.builds,))
+    assert runs[0][-1] > 3  # rebuilt within the run
+    assert any(stage > 0 for stage in failed), failed
+    for a, b in zip(*runs):
+        assert np.array_equal(a, b)
+
+
+def test_adaptive_threads_time_a_block_per_step():
+    """A block of k steps counts as k steps of the thread count it ran on,
+    timed per step."""
+    control = threads.AdaptiveThreads(1)
+    with control.step(100) as context:
+        context.steps = 5
+    assert control.seen == {1: 5} and control.steps == 5
+    with control.step(100) as context:
+        context.steps = 0  # not timed
+    assert control.seen == {1: 5}

@@ -124,6 +124,14 @@ def _equal(x, y):
 
 
 
+#: Most steps :meth:`SpinLatticeDynamics.run` takes in one block (small systems,
+#: nothing observing the run in between): an interrupt waits for at most this many.
+QUIET_BLOCK = 256
+#: and when the adaptive thread count tries another count (a probe: it may be a
+#: bad one on a busy machine)
+PROBE_BLOCK = 16
+
+
 class SpinLatticeDynamics(MolecularDynamics):
     """Base of the spin–lattice integrators (see the module docstring).
 
@@ -393,15 +401,40 @@ class SpinLatticeDynamics(MolecularDynamics):
         """ASE's ``MolecularDynamics.irun``, with the step counter advanced
         together with the Atoms: an interrupt (Ctrl-C) leaves both at the state
         before a step or both after it."""
+        return self._irun(steps, blocks=False)
+
+    def _irun(self, steps, blocks):
+        """:meth:`irun`; with ``blocks``, the steps after which nothing observes
+        the run (no log line, frame or observer due) may be taken several at a
+        time (:meth:`_quiet_steps`), the Atoms written and the counter advanced
+        after each block: the same states, fewer returns to Python."""
         self.max_steps = self.nsteps + steps
         if self.nsteps == 0:
             self._refresh_properties()
             self.log()
             self.call_observers()
         yield self.nsteps == self.max_steps
+        blocked = False  # a block was taken: time blocks only (see below)
         while self.nsteps < self.max_steps:
-            with self.threads.step(len(self.atoms)):
-                self._step(count=True)
+            quiet = self._steps_unobserved() if blocks else 0
+            with self.threads.step(len(self.atoms)) as context:
+                done = 0
+                tried = quiet >= 2 and self._blocks_possible()
+                if tried:
+                    if getattr(context, "probing", False):
+                        quiet = min(quiet, PROBE_BLOCK)
+                    done = self._quiet_steps(quiet)
+                timed = hasattr(context, "steps")
+                if done:
+                    blocked = True
+                    if timed:
+                        context.steps = done
+                else:
+                    self._step(count=True, synced=tried)
+                    if blocked and timed:
+                        # a step alone pays Python's share that a block spreads
+                        # over its steps: the thread counts are judged on blocks
+                        context.steps = 0
             self._refresh_properties()
             self.log()
             self.call_observers()
@@ -413,11 +446,72 @@ class SpinLatticeDynamics(MolecularDynamics):
         if progress:
             from ..progress import run_with_progress
             return run_with_progress(self, steps, progress)
-        return super().run(steps)
+        converged = False
+        for converged in self._irun(steps, blocks=True):
+            pass
+        return converged
 
-    def _step(self, count=False):
+    def _steps_unobserved(self):
+        """How many of the next steps end with no observer due (so that no
+        energy, frame or Python call is needed between them), at most
+        :data:`QUIET_BLOCK` and the steps left in the run."""
+        n0 = self.nsteps
+        ahead = min(self.max_steps - n0, QUIET_BLOCK)
+        for _, interval, _, _ in self.observers:
+            if interval > 0:
+                due = (n0 // interval + 1) * interval
+            elif -interval > n0:
+                due = -interval
+            else:
+                continue
+            ahead = min(ahead, due - n0 - 1)
+        return ahead
+
+    def _quiet_steps(self, steps):
+        """Take up to ``steps`` steps at once, nothing observing the run between
+        them, and write the Atoms after the last (an integrator that can:
+        :meth:`_steps_at_once`). Returns the steps taken (0: none, take one
+        the usual way). An error or interrupt leaves the Atoms and the counter
+        as they were before the block."""
         self._rebase_clock()
-        st = self._sync()
+        self._sync()
+        before = self._written
+        nsteps = self.nsteps
+        try:
+            done, sweeps, last_sweeps, last_geometries = self._steps_at_once(steps)
+            if done:
+                self._commit()
+                self.nsteps = nsteps + done
+        except BaseException:
+            self._state = None
+            self.nsteps = nsteps
+            self._restore(before)
+            raise
+        if done:
+            self.iterations = last_sweeps
+            self.geometry_evaluations = last_geometries
+            self.total_iterations += sweeps
+            self.total_steps += done
+        return done
+
+    def _blocks_possible(self):
+        """Whether :meth:`_steps_at_once` may take steps (a quick test before the
+        state is synchronised)."""
+        return False
+
+    def _steps_at_once(self, steps):
+        """Up to ``steps`` whole steps in one call, the Atoms not written: (steps
+        done, sweeps in all, sweeps and geometries of the last step). None here."""
+        return 0, 0, 0, 0
+
+    def _step(self, count=False, synced=False):
+        """One step (all stages); ``synced``: the clock and the state have just
+        been brought up to date (:meth:`_quiet_steps`, which took no step)."""
+        if synced:
+            st = self._state
+        else:
+            self._rebase_clock()
+            st = self._sync()
         before = self._written
         nsteps = self.nsteps
         want_energy = self._observer_due(self.nsteps + 1)

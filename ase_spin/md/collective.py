@@ -298,6 +298,15 @@ class CollectivePRK(SpinLatticeDynamics):
         st.ops, st.ops_next = st.ops_next, st.ops
         return iterations, geometries
 
+    def _blocks_possible(self):
+        return len(self.atoms) < threads.SERIAL_BELOW and fused._blocks(type(self))
+
+    def _steps_at_once(self, steps):
+        """Small systems: the steps as one compiled call (fused.collective_block)."""
+        if not self.magnetic or self.frozen:
+            return 0, 0, 0, 0
+        return fused.collective_block(self, steps)
+
     def _settled_qtol(self, largest):
         """How close q̃ of an outer round must come to the last round's for the
         step to stand on the pair geometry prepared there: round-off of the

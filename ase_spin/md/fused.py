@@ -33,7 +33,7 @@ from ..neighbors import all_finite, max_displacement
 from ..terms.base import compile_with
 from . import kernels
 
-__all__ = ["collective_step", "step_function"]
+__all__ = ["collective_block", "collective_step", "step_function"]
 
 _EPS = float(np.finfo(float).eps)
 #: Outer iterations (q̃ and W settling) allowed, as in CollectivePRK.
@@ -147,6 +147,100 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
                            probe)
     return (_DONE, qt, P, stilde, carry_qt, carry, FLt, W, Wnext, theta, iterations,
             geometries, order, settle, increment)
+
+
+@nb.njit(cache=True, inline="always")
+def _newest(ring, stage, head, count, k):
+    """The k-th newest increment of a stage's ring buffer (the newest where
+    fewer are kept: as kernels._last pads)."""
+    return ring[stage, (head - k) % ring.shape[1] if k < count else head]
+
+
+def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, carry_mid,
+         Wnext, tol, fraction, floor, max_iter, theta, settle, memory, local, switch, orders,
+         ring, counts, heads, probe, lattice, op_q, op_t, reference, half_skin, settled_tol,
+         qtol_floor, coefficients):
+    """Up to ``steps`` whole steps (every stage γ_k h of the composition) of the
+    fused step (compiled with ``fused_step`` bound to :func:`_step` of the
+    terms' pieces), as CollectivePRK takes them one by one with nothing
+    between: the same calls with the same arguments, so the same bits. What
+    the Python side keeps per stage comes in arrays, updated in place: the
+    contraction ``theta``, how far the second solve moved W (``settle``), the
+    predictor's ``orders`` and its increments in ``ring`` (stage, slot, n, 3)
+    with ``counts`` kept and the newest at ``heads``. A step is taken whole or
+    not at all: where a stage gives up (see :func:`_step`) the state is that
+    of the last whole step (``carry_p``, the one array the step changes in
+    place, put back). Returns (steps done, the stage that gave up or −1, q, p,
+    s, F_L, carry of q and of s, the spare W buffer, whether the two spin
+    operators swapped roles, sweeps in all, sweeps and geometries of the last
+    step)."""
+    nstages = gammas.shape[0]
+    depth = ring.shape[1]
+    saved_p = np.empty_like(carry_p)
+    increments = np.empty((nstages,) + s.shape)
+    new_theta = theta.copy()
+    new_settle = settle.copy()
+    new_orders = orders.copy()
+    done = 0
+    sweeps = 0
+    last_sweeps = 0
+    last_geometries = 0
+    swapped = False
+    failed = -1
+    for _ in range(steps):
+        q0, p0, s0, FL0, cq0, cs0, W0 = q, p, s, FL, carry_q, carry_s, Wnext
+        saved_p[:] = carry_p
+        oq, ot = op_q, op_t
+        its_step = 0
+        geometries = 0
+        for stage in range(nstages):
+            head, count = heads[stage], counts[stage]
+            hs = (_newest(ring, stage, head, count, 0), _newest(ring, stage, head, count, 1),
+                  _newest(ring, stage, head, count, 2), _newest(ring, stage, head, count, 3),
+                  _newest(ring, stage, head, count, 4), _newest(ring, stage, head, count, 5),
+                  _newest(ring, stage, head, count, 6), _newest(ring, stage, head, count, 7),
+                  _newest(ring, stage, head, count, 8), _newest(ring, stage, head, count, 9),
+                  _newest(ring, stage, head, count, 10), _newest(ring, stage, head, count, 11))
+            first_tol = min(1e-6, max(tol, fraction * settle[stage]))
+            (status, qt, P, s_new, cq, cs, FLt, W, Wn, th, its, geos, order, moved,
+             increment) = fused_step(  # noqa: F821 - bound per combination of terms
+                q, p, s, FL, m, gammas[stage] * dt, carry_q, carry_p, carry_s, carry_mid,
+                hs[0], Wnext, scales[stage], tol, first_tol, floor, max_iter[stage],
+                theta[stage], lattice, oq, ot, reference, half_skin, settled_tol, qtol_floor,
+                memory[stage], local[stage], switch[stage], count > 0,
+                coefficients[min(orders[stage], count - 1)], hs, count, probe)
+            if status != _DONE:
+                failed = stage
+                break
+            q, p, s, FL, carry_q, carry_s, Wnext = qt, P, s_new, FLt, cq, cs, Wn
+            oq, ot = ot, oq
+            new_theta[stage] = th
+            if moved >= 0.0:
+                new_settle[stage] = moved
+            new_orders[stage] = order
+            increments[stage] = increment
+            its_step += its
+            geometries += geos
+        if failed >= 0:
+            q, p, s, FL, carry_q, carry_s, Wnext = q0, p0, s0, FL0, cq0, cs0, W0
+            carry_p[:] = saved_p
+            break
+        for stage in range(nstages):
+            theta[stage] = new_theta[stage]
+            settle[stage] = new_settle[stage]
+            orders[stage] = new_orders[stage]
+            heads[stage] = (heads[stage] + 1) % depth
+            ring[stage, heads[stage]] = increments[stage]
+            counts[stage] = min(counts[stage] + 1, depth)
+        if nstages % 2 == 1:
+            op_q, op_t = op_t, op_q
+            swapped = not swapped
+        done += 1
+        sweeps += its_step
+        last_sweeps = its_step
+        last_geometries = geometries
+    return (done, failed, q, p, s, FL, carry_q, carry_s, Wnext, swapped, sweeps, last_sweeps,
+            last_geometries)
 
 
 def _both(positions, data, forces):
@@ -279,11 +373,10 @@ def _pays(dyn, step):
     return getattr(dyn, "max_steps", 0) - dyn.nsteps >= FUSE_AFTER_STEPS
 
 
-def collective_step(dyn, h, stage):
-    """CollectivePRK's second-order step of size h as one compiled call, when
-    the system is small (light kernels serial: threads.small()) and every term
-    offers its pieces; returns (sweeps, geometries), or None to take the general
-    path (nothing changed)."""
+def _pieces(dyn):
+    """(the fused step, lattice data, the two spin operators' data: at q and at
+    q̃) when the system is small (light kernels serial: threads.small()) and
+    every term offers its pieces, else None."""
     st = dyn._state
     ev = dyn.ev
     if (not threads.small() or st.ops_next is None or len(st.ops) != 1
@@ -315,22 +408,52 @@ def collective_step(dyn, h, stage):
     step = pieces.get("step")
     if step is None:
         step = pieces["step"] = step_function(lattice_fn, piece_t[:3])
-    if not threads.tiny() and not _pays(dyn, step):
+    reference = ev.neighbors.reference
+    if reference is None or reference.shape != st.q.shape:
         return None
-    scale = st.scales.get(h)
-    if scale is None:  # as CollectivePRK._solve
-        scale = st.scales[h] = (h * dyn.sigma / dyn.hbar) * st.rate
+    return step, lattice_data, piece_q[3], piece_t[3], pieces
+
+
+def _solver_settings(dyn, stage, h):
+    """(Anderson memory, locally exact sweep, sweeps allowed, contraction per
+    sweep above which to give up) of a stage's midpoint solves, as
+    CollectivePRK._solve chooses: with ``"auto"``, Jacobi until it contracts
+    slowly (then the general path makes the switch)."""
     collective = _collective or _import_collective()
     solver, max_iter, switch = dyn._solver, dyn.max_iter, np.inf
-    if solver == "auto":  # as CollectivePRK._solve: Jacobi until it contracts slowly
-        solver = st.modes.get((stage, h), "jacobi")
+    if solver == "auto":
+        solver = dyn._state.modes.get((stage, h), "jacobi")
         if solver == "jacobi":
             max_iter = min(max_iter, collective._AUTO_JACOBI_SWEEPS)
             switch = collective._AUTO_SWITCH
     memory, local = collective.SOLVERS[solver]
-    reference = ev.neighbors.reference
-    if reference is None or reference.shape != st.q.shape:
+    return memory, local, max_iter, switch
+
+
+def _scale(dyn, h):
+    st = dyn._state
+    scale = st.scales.get(h)
+    if scale is None:  # as CollectivePRK._solve: c_i = hσ r_i/ħ
+        scale = st.scales[h] = (h * dyn.sigma / dyn.hbar) * st.rate
+    return scale
+
+
+def collective_step(dyn, h, stage):
+    """CollectivePRK's second-order step of size h as one compiled call, when
+    the system is small (light kernels serial: threads.small()) and every term
+    offers its pieces; returns (sweeps, geometries), or None to take the general
+    path (nothing changed)."""
+    got = _pieces(dyn)
+    if got is None:
         return None
+    step, lattice_data, data_q, data_t, _ = got
+    if not threads.tiny() and not _pays(dyn, step):
+        return None
+    st = dyn._state
+    ev = dyn.ev
+    scale = _scale(dyn, h)
+    collective = _collective or _import_collective()
+    memory, local, max_iter, switch = _solver_settings(dyn, stage, h)
     history = st.history[stage]
     predict = bool(history) and _predicts(type(dyn))
     if predict:  # CollectivePRK._predict, inside the step
@@ -349,7 +472,7 @@ def collective_step(dyn, h, stage):
                                        st.Wnext, scale, dyn.tol,
                                        collective.first_tolerance(dyn.tol, st.settle[stage]),
                                        64.0 * dyn.tol, max_iter, st.theta[stage], lattice_data,
-                                       piece_q[3], piece_t[3], reference, 0.5 * ev.skin,
+                                       data_q, data_t, ev.neighbors.reference, 0.5 * ev.skin,
                                        dyn._settled_tol(), dyn._settled_qtol(0.0), memory,
                                        local, switch, predict, coef, hs, n_history, st.probe)
     if status != _DONE:
@@ -370,3 +493,111 @@ def collective_step(dyn, h, stage):
     st.q, st.p, st.s = qt, P, s_new
     st.ops, st.ops_next = st.ops_next, st.ops
     return iterations, geometries
+
+
+_runners = {}
+
+
+def _runner(step):
+    """:func:`_run` for a fused step (compiled once per combination, cached on disk)."""
+    fn = _runners.get(step)
+    if fn is None:
+        fn = _runners[step] = compile_with(_run, {"fused_step": step},
+                                           step.py_func.__name__)
+    return fn
+
+
+#: Methods a subclass must not override for its steps to be taken in blocks:
+#: :meth:`SpinLatticeDynamics._step` around every stage's ``_substep``.
+_STEPPING = ("_step", "_substep", "_coupled_step", "_commit", "_observer_due")
+_block_classes = {}
+
+
+def _blocks(cls):
+    ok = _block_classes.get(cls)
+    if ok is None:
+        from .base import SpinLatticeDynamics
+        from .collective import CollectivePRK
+
+        ok = _block_classes[cls] = (
+            _plain(cls) and _predicts(cls)
+            and all(getattr(cls, name) is getattr(CollectivePRK, name) for name in _STEPPING)
+            and CollectivePRK._step is SpinLatticeDynamics._step)
+    return ok
+
+
+def collective_block(dyn, steps):
+    """Up to ``steps`` whole CollectivePRK steps as one compiled call
+    (:func:`_run`), for a small system whose every stage can take the fused
+    step and has a predictor history; the state is left after the last whole
+    step, the Atoms not written. Returns (steps done, sweeps in all, sweeps
+    and geometries of the last step); 0 steps: nothing changed, take the
+    general path."""
+    st = dyn._state
+    if not _blocks(type(dyn)) or dyn.frozen or not dyn.magnetic:
+        return 0, 0, 0, 0
+    if not all(st.history):
+        return 0, 0, 0, 0
+    got = _pieces(dyn)
+    if got is None:
+        return 0, 0, 0, 0
+    step, lattice_data, data_q, data_t, _ = got
+    run = _runner(step)
+    # its compilation (~5 s: the step's code is compiled again inside it) is
+    # paid as the fused step's is, whatever the size
+    if not (_pays(dyn, step) and _pays(dyn, run)):
+        return 0, 0, 0, 0
+    ev = dyn.ev
+    collective = _collective or _import_collective()
+    gammas = np.ascontiguousarray(dyn.gammas, dtype=float)
+    nstages = len(gammas)
+    n = len(st.s)
+    scales = np.empty((nstages, n))
+    memory = np.empty(nstages, dtype=np.int64)
+    local = np.empty(nstages, dtype=np.bool_)
+    max_iter = np.empty(nstages, dtype=np.int64)
+    switch = np.empty(nstages)
+    for stage, gamma in enumerate(dyn.gammas):
+        h = gamma * dyn.dt
+        scales[stage] = _scale(dyn, h)
+        memory[stage], local[stage], max_iter[stage], switch[stage] = _solver_settings(
+            dyn, stage, h)
+    depth = st.history[0].maxlen
+    ring = np.empty((nstages, depth, n, 3))
+    counts = np.empty(nstages, dtype=np.int64)
+    heads = np.empty(nstages, dtype=np.int64)
+    for stage, history in enumerate(st.history):
+        for k, increment in enumerate(history):  # oldest first
+            ring[stage, k] = increment
+        counts[stage] = len(history)
+        heads[stage] = len(history) - 1
+    theta = np.array(st.theta, dtype=float)
+    settle = np.array(st.settle, dtype=float)
+    orders = np.array(st.predictor_order, dtype=np.int64)
+    (done, failed, q, p, s, FL, carry_q, carry_s, Wnext, swapped, sweeps, last_sweeps,
+     last_geometries) = run(steps, st.q, st.p, st.s, st.FL, dyn.masses[:, 0], dyn.dt, gammas,
+                            scales, st.carry_q, st.carry_p, st.carry_s, st.carry_mid,
+                            st.Wnext, dyn.tol, collective.FIRST_SOLVE_FRACTION,
+                            64.0 * dyn.tol, max_iter, theta, settle, memory, local, switch,
+                            orders, ring, counts, heads, st.probe, lattice_data, data_q,
+                            data_t, ev.neighbors.reference, 0.5 * ev.skin,
+                            dyn._settled_tol(), dyn._settled_qtol(0.0),
+                            kernels._COEFFICIENTS)
+    if done:
+        st.q, st.p, st.s, st.FL = q, p, s, FL
+        st.EL, st.EL_terms, st.VL = None, None, None
+        st.carry_q, st.carry_s, st.Wnext = carry_q, carry_s, Wnext
+        if swapped:
+            st.ops, st.ops_next = st.ops_next, st.ops
+        st.theta = theta.tolist()
+        st.settle = settle.tolist()
+        st.predictor_order = orders.tolist()
+        for stage, history in enumerate(st.history):
+            history.clear()
+            for k in range(counts[stage] - 1, -1, -1):  # oldest first: views of the ring
+                history.append(ring[stage, (heads[stage] - k) % depth])
+    if failed > 0:
+        # a later stage gave up: the operator at q was refilled at that stage's
+        # q̃; prepare it at q again for the general path
+        st.ops = ev.spin_operators(st.q, out=st.ops, half=dyn.half_lists)
+    return done, sweeps, last_sweeps, last_geometries

@@ -631,7 +631,7 @@ class Langevin(CollectivePRK):
 
     # -- the step -------------------------------------------------------------------
 
-    def _step(self, count=False):
+    def _step(self, count=False, synced=False):
         # The closing bath half of this step may be merged into the opening
         # half of the next when nobody sees the state in between: inside run()
         # (count), not the run's last step, no observer due after it.
@@ -641,7 +641,7 @@ class Langevin(CollectivePRK):
         saved = (self.bath_energy_lattice, self.bath_energy_spin,
                  self.rng.bit_generator.state)
         try:
-            super()._step(count)
+            super()._step(count, synced)
         except BaseException:
             # the Atoms went back to the state before the step: so do the
             # bath energies and the random numbers
