@@ -2,8 +2,9 @@
 
 ``dyn.run(steps, progress=True)`` on the integrators here, or
 ``run_with_progress(dyn, steps)`` for any ASE ``MolecularDynamics`` /
-``Optimizer``. The bar is updated between steps from ``dyn.irun``; it adds no
-observer, so the integrators still compute energies only on logged steps.
+``Optimizer``. The bar is updated between steps from ``dyn.irun`` (here: after
+each step or block of steps ``run`` takes); it adds no observer, so the
+integrators still compute energies only on logged steps.
 """
 
 from __future__ import annotations
@@ -33,9 +34,13 @@ def run_with_progress(dyn, steps=50, progress=True):
         raise TypeError(f"progress must be True, False or a dict of tqdm options, "
                         f"got {progress!r}")
     converged = steps == 0
+    # this package's integrators may take several steps between two yields
+    # (SpinLatticeDynamics.run's blocks): the bar follows the step counter
+    blocks = getattr(dyn, "_irun", None)
+    steps_run = blocks(steps, blocks=True) if blocks else dyn.irun(steps=steps)
     with tqdm(total=steps, **options) as bar:
-        # irun yields once before the first step (state at start), then once per step
-        for k, converged in enumerate(dyn.irun(steps=steps)):
-            if k:
-                bar.update(1)
+        start = dyn.nsteps
+        # yields once before the first step (state at start), then after each step or block
+        for converged in steps_run:
+            bar.update(dyn.nsteps - start - bar.n)
     return converged
