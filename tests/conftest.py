@@ -91,3 +91,28 @@ def spy_fused(monkeypatch):
     monkeypatch.setattr(fused, "collective_step", spy_step)
     monkeypatch.setattr(fused, "collective_block", spy_block)
     return used
+
+
+def interrupted_at(k, action):
+    """Run ``action()`` with a KeyboardInterrupt raised at the k-th line
+    executed in ase_spin (Python lines only: compiled code is not traced).
+    Returns True if it completed before the k-th line, False if interrupted."""
+    import sys
+
+    count = [0]
+
+    def tracer(frame, event, arg):
+        if event == "line" and "ase_spin" in frame.f_code.co_filename:
+            count[0] += 1
+            if count[0] == k:
+                raise KeyboardInterrupt
+        return tracer
+
+    sys.settrace(tracer)
+    try:
+        action()
+        return True
+    except KeyboardInterrupt:
+        return False
+    finally:
+        sys.settrace(None)

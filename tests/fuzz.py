@@ -45,6 +45,7 @@ if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
 import ase_spin  # noqa: E402
+from conftest import interrupted_at  # noqa: E402
 from ase_spin import (BetheSlater, CollectivePRK, Cubic, Exchange, IntegrationError,  # noqa: E402
                       LennardJones, SpinLatticeCalculator, SuzukiTrotter)
 
@@ -660,24 +661,7 @@ def interrupt_campaign(cls, order, constrained, stride=1):
         k += stride
         dyn = make()
         dyn.run(2)
-        count = [0]
-
-        def tracer(frame, event, arg):
-            if event == "line" and "ase_spin" in frame.f_code.co_filename:
-                count[0] += 1
-                if count[0] == k:
-                    raise KeyboardInterrupt
-            return tracer
-
-        sys.settrace(tracer)
-        try:
-            dyn.run(1)
-            done = True
-        except KeyboardInterrupt:
-            done = False
-        finally:
-            sys.settrace(None)
-        if done:
+        if interrupted_at(k, lambda: dyn.run(1)):
             break
         points += 1
         s = state(dyn.atoms)

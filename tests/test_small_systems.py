@@ -15,7 +15,7 @@ from ase_spin.neighbors import max_displacement
 from ase_spin.scenes import fcc_cobalt, field_anisotropy_terms, paper_chain, paper_chain_terms
 from ase_spin.terms import Cubic, Exchange, LennardJones, lennard_jones
 
-from conftest import general_path_only, spy_fused
+from conftest import general_path_only, interrupted_at, spy_fused
 
 
 @pytest.fixture(autouse=True)
@@ -379,13 +379,14 @@ def _state_of(atoms, dyn):
 
 
 @pytest.mark.parametrize("scene, order", [("chain", 2), ("chain", 4), ("chain", 6),
-                                          ("fcc", 2), ("fcc", 4)])
+                                          ("fcc", 2), ("fcc", 4), ("frozen", 2),
+                                          ("frozen", 6)])
 def test_run_in_blocks_equals_step_by_step_bitwise(scene, order, monkeypatch):
     """run() takes the steps between observers as blocks of compiled steps
-    (fused.collective_block); every state it writes — the final one and the
-    frames an observer every 7 steps sees — is bit for bit that of the
-    same steps taken one at a time by the general path, with the same
-    counters (steps, time, sweeps)."""
+    (fused.collective_block; a frozen lattice: the spins-only step); every
+    state it writes — the final one and the frames an observer every 7 steps
+    sees — is bit for bit that of the same steps taken one at a time by the
+    general path, with the same counters (steps, time, sweeps)."""
     used = _spy_fused(monkeypatch)
     results = []
     for blocks in (True, False):
@@ -396,7 +397,8 @@ def test_run_in_blocks_equals_step_by_step_bitwise(scene, order, monkeypatch):
             dyn = CollectivePRK(atoms, 2.0**-6, hbar=1.0, precession="spin", order=order)
         else:
             atoms = fcc_cobalt(3)
-            dyn = CollectivePRK(atoms, 0.2 * units.fs, order=order)
+            dyn = CollectivePRK(atoms, (1.0 if scene == "frozen" else 0.2) * units.fs,
+                                order=order, lattice="frozen" if scene == "frozen" else "moving")
         frames = []
         dyn.attach(lambda: frames.append((dyn.nsteps, atoms.positions.copy(),
                                           get_spins(atoms))), interval=7)
@@ -468,7 +470,6 @@ def test_an_interrupt_anywhere_in_a_block_leaves_the_state_before_or_after_it():
     on gives the uninterrupted run's state to round-off (bit for bit where the
     integrator kept its state; an interrupted block restarts it from the Atoms,
     with a fresh midpoint predictor: W differs within the solver's tolerance)."""
-    import sys
 
     def make():
         dyn = CollectivePRK(paper_chain(), 2.0**-6, hbar=1.0, precession="spin")
@@ -489,23 +490,7 @@ def test_an_interrupt_anywhere_in_a_block_leaves_the_state_before_or_after_it():
     while True:
         k += 1
         dyn = make()
-        count = [0]
-
-        def tracer(frame, event, arg):
-            if event == "line" and "ase_spin" in frame.f_code.co_filename:
-                count[0] += 1
-                if count[0] == k:
-                    raise KeyboardInterrupt
-            return tracer
-
-        sys.settrace(tracer)
-        try:
-            dyn.run(3)
-            done = True
-        except KeyboardInterrupt:
-            done = False
-        finally:
-            sys.settrace(None)
+        done = interrupted_at(k, lambda: dyn.run(3))
         if done:
             break
         points += 1
@@ -519,3 +504,73 @@ def test_an_interrupt_anywhere_in_a_block_leaves_the_state_before_or_after_it():
         assert np.abs(state(dyn) - final).max() <= 1e-12, k
     assert points > 50
     assert dyn.total_steps == 5 and dyn.nsteps == 5
+
+
+def test_frozen_block_leaves_the_solver_switch_to_the_general_path(monkeypatch):
+    """Frozen lattice, order 4 at 4 fs: the Jacobi sweeps of the middle stage
+    contract too slowly, the block stops before that step, the general path
+    switches the stage to Anderson (solver="auto"), and the blocks after it
+    solve that stage with Anderson too: bit for bit the general path's run."""
+    used = _spy_fused(monkeypatch)
+    runs = []
+    for general in (False, True):
+        if general:
+            general_path_only(monkeypatch)
+        atoms = fcc_cobalt(3)
+        dyn = CollectivePRK(atoms, 4.0 * units.fs, order=4, lattice="frozen")
+        with pytest.warns(UserWarning):
+            dyn.run(25)
+        runs.append((get_spins(atoms), dyn.total_iterations, dict(dyn._state.modes)))
+    assert runs[0][2] and runs[0][2] == runs[1][2]  # a stage switched to Anderson
+    assert used["blocks"] >= 1
+    assert np.array_equal(runs[0][0], runs[1][0]) and runs[0][1] == runs[1][1]
+
+
+@pytest.mark.parametrize("order", [2, 4])
+def test_a_block_stopping_mid_way_hands_that_step_to_the_general_path(order, monkeypatch):
+    """Frozen lattice at 0.5 fs. Order 2: Jacobi capped at 11 sweeps after 15
+    steps; order 4: the "auto" switch to Anderson lowered to 0.111, which the
+    middle stage's contraction (0.103–0.113 here) crosses now and then, the
+    outer stages' (≤ 0.07) never. A block takes some steps, stops before
+    the first step it cannot take (at order 4 in its third stage: the state
+    put back to the last whole step), the general path takes that step
+    (switching the stage to Anderson), and blocks go on: bit for bit the
+    general path's run."""
+    from ase_spin.md import collective
+
+    stops = []
+    real = fused._frozen_runner
+
+    def spy_runner(half):
+        run = real(half)
+
+        def wrapped(*args):
+            result = run(*args)
+            stops.append((args[0], result[0]))
+            return result
+
+        wrapped.overloads = run.overloads
+        wrapped._cache = run._cache
+        return wrapped
+
+    monkeypatch.setattr(fused, "_frozen_runner", spy_runner)
+    switch = collective._AUTO_SWITCH
+    runs = []
+    for general in (False, True):
+        if general:
+            general_path_only(monkeypatch)
+        atoms = fcc_cobalt(3)
+        dyn = CollectivePRK(atoms, 0.5 * units.fs, order=order, lattice="frozen")
+        dyn.run(15)
+        if order == 2:
+            dyn.max_iter = 11
+        else:
+            monkeypatch.setattr(collective, "_AUTO_SWITCH", 0.111)
+        dyn.run(40)
+        monkeypatch.setattr(collective, "_AUTO_SWITCH", switch)
+        runs.append((get_spins(atoms), dyn.total_iterations, dict(dyn._state.modes)))
+    assert any(0 < done < asked for asked, done in stops), stops
+    assert runs[0][2] and runs[0][2] == runs[1][2]
+    if order == 4:
+        assert [stage for stage, _ in runs[0][2]] == [2]
+    assert np.array_equal(runs[0][0], runs[1][0]) and runs[0][1] == runs[1][1]

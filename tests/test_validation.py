@@ -2,7 +2,6 @@
 changes between runs take effect: the issue's reproducers, one by one."""
 
 import copy
-import sys
 
 import numpy as np
 import pytest
@@ -15,7 +14,7 @@ from ase_spin import (BetheSlater, CollectivePRK, Exchange, LennardJones,
                       SpinConvergenceError, SpinLatticeCalculator, SuzukiTrotter,
                       UnstableStepError)
 
-from conftest import CO_BS, CO_LJ
+from conftest import CO_BS, CO_LJ, interrupted_at
 
 INTEGRATORS = [CollectivePRK, SuzukiTrotter]
 
@@ -397,24 +396,7 @@ def test_interrupt_anywhere_in_a_step_leaves_a_whole_state(cls, order, constrain
         k += 1
         dyn = make()
         dyn.run(2)
-        count = [0]
-
-        def tracer(frame, event, arg):
-            if event == "line" and "ase_spin" in frame.f_code.co_filename:
-                count[0] += 1
-                if count[0] == k:
-                    raise KeyboardInterrupt
-            return tracer
-
-        sys.settrace(tracer)
-        try:
-            dyn.run(1)
-            completed = True
-        except KeyboardInterrupt:
-            completed = False
-        finally:
-            sys.settrace(None)
-        if completed:
+        if interrupted_at(k, lambda: dyn.run(1)):
             break
         s = state(dyn.atoms)
         if np.array_equal(s, before):

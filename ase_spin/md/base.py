@@ -415,8 +415,10 @@ class SpinLatticeDynamics(MolecularDynamics):
             self.call_observers()
         yield self.nsteps == self.max_steps
         blocked = False  # a block was taken: time blocks only (see below)
+        stopped = False  # the last block stopped before a step it could not take
         while self.nsteps < self.max_steps:
-            quiet = self._steps_unobserved() if blocks else 0
+            # after a block that stopped early, that step the usual way first
+            quiet = self._steps_unobserved() if blocks and not stopped else 0
             with self.threads.step(len(self.atoms)) as context:
                 done = 0
                 tried = quiet >= 2 and self._blocks_possible()
@@ -424,6 +426,7 @@ class SpinLatticeDynamics(MolecularDynamics):
                     if getattr(context, "probing", False):
                         quiet = min(quiet, PROBE_BLOCK)
                     done = self._quiet_steps(quiet)
+                stopped = 0 < done < quiet
                 timed = hasattr(context, "steps")
                 if done:
                     blocked = True

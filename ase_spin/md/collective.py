@@ -303,8 +303,6 @@ class CollectivePRK(SpinLatticeDynamics):
 
     def _steps_at_once(self, steps):
         """Small systems: the steps as one compiled call (fused.collective_block)."""
-        if not self.magnetic or self.frozen:
-            return 0, 0, 0, 0
         return fused.collective_block(self, steps)
 
     def _settled_qtol(self, largest):

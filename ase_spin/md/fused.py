@@ -243,6 +243,81 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
             last_geometries)
 
 
+def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_iter, theta,
+                memory, local, switch, orders, ring, counts, heads, probe, row, nbr, c,
+                coefficients):
+    """:func:`_run` for a frozen lattice (CollectivePRK's spins-only step,
+    ``_substep`` with ``lattice="frozen"``) with one spin operator of the form
+    B_i = Σ_j c_k W_j (``linear_pairs``: row, nbr, c): per stage the
+    predictor (``extrapolate``), the midpoint solve (``solve``: the serial
+    twin of kernels.midpoint_solve_half or midpoint_solve, bound per pair-list
+    kind) and the predictor's order and increment, the same calls as the
+    Python path with the same arguments. Steps are taken whole or not at all;
+    a solve that fails or contracts by more than ``switch`` per sweep stops
+    the block before its step. Returns (steps done, s, carry of s, the spare W
+    buffer, sweeps in all, sweeps of the last step)."""
+    nstages = gammas.shape[0]
+    depth = ring.shape[1]
+    increments = np.empty((nstages,) + s.shape)
+    new_theta = theta.copy()
+    new_orders = orders.copy()
+    done = 0
+    sweeps = 0
+    last_sweeps = 0
+    for _ in range(steps):
+        s0, cs0, W0 = s, carry_s, Wnext
+        its_step = 0
+        failed = False
+        for stage in range(nstages):
+            head, count = heads[stage], counts[stage]
+            hs = (_newest(ring, stage, head, count, 0), _newest(ring, stage, head, count, 1),
+                  _newest(ring, stage, head, count, 2), _newest(ring, stage, head, count, 3),
+                  _newest(ring, stage, head, count, 4), _newest(ring, stage, head, count, 5),
+                  _newest(ring, stage, head, count, 6), _newest(ring, stage, head, count, 7),
+                  _newest(ring, stage, head, count, 8), _newest(ring, stage, head, count, 9),
+                  _newest(ring, stage, head, count, 10), _newest(ring, stage, head, count, 11))
+            W = np.empty_like(s)
+            extrapolate(coefficients[min(orders[stage], count - 1)], hs[0], hs[1],  # noqa: F821
+                        hs[2], hs[3], hs[4], hs[5], hs[6], hs[7], hs[8], hs[9], hs[10], hs[11],
+                        s, W)
+            stilde = np.zeros_like(s)
+            carry = np.zeros_like(s)
+            its, delta, status, which, measured, moved = solve(  # noqa: F821
+                1, row, nbr, c, s, W, Wnext, stilde, scales[stage], tol, floor,
+                max_iter[stage], min(1.0, 2.0 * theta[stage]), carry_s, carry, memory[stage],
+                local[stage])
+            if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch[stage]):
+                failed = True
+                break
+            if 0.0 <= measured < 1.0:
+                new_theta[stage] = measured
+            if which == 1:
+                W, Wnext = Wnext, W
+            increment = W - s
+            new_orders[stage] = best_order(count, hs[0], hs[1], hs[2], hs[3],  # noqa: F821
+                                           hs[4], hs[5], hs[6], hs[7], hs[8], hs[9], hs[10],
+                                           hs[11], increment, probe, probe)
+            increments[stage] = increment
+            s, carry_s = stilde, carry
+            its_step += its
+        if failed:
+            s, carry_s, Wnext = s0, cs0, W0
+            for stage in range(nstages):
+                new_theta[stage] = theta[stage]
+                new_orders[stage] = orders[stage]
+            break
+        for stage in range(nstages):
+            theta[stage] = new_theta[stage]
+            orders[stage] = new_orders[stage]
+            heads[stage] = (heads[stage] + 1) % depth
+            ring[stage, heads[stage]] = increments[stage]
+            counts[stage] = min(counts[stage] + 1, depth)
+        done += 1
+        sweeps += its_step
+        last_sweeps = its_step
+    return done, s, carry_s, Wnext, sweeps, last_sweeps
+
+
 def _both(positions, data, forces):
     """Two lattice pieces in turn (the terms' order, as Evaluator.lattice)."""
     first_lattice(positions, data[0], forces)  # noqa: F821
@@ -526,18 +601,65 @@ def _blocks(cls):
     return ok
 
 
+def _stage_arrays(dyn):
+    """Per stage, as arrays for the block runners: γ, c_i (scales), and the
+    solver settings (:func:`_solver_settings`)."""
+    st = dyn._state
+    gammas = np.ascontiguousarray(dyn.gammas, dtype=float)
+    nstages = len(gammas)
+    scales = np.empty((nstages, len(st.s)))
+    memory = np.empty(nstages, dtype=np.int64)
+    local = np.empty(nstages, dtype=np.bool_)
+    max_iter = np.empty(nstages, dtype=np.int64)
+    switch = np.empty(nstages)
+    for stage, gamma in enumerate(dyn.gammas):
+        h = gamma * dyn.dt
+        scales[stage] = _scale(dyn, h)
+        memory[stage], local[stage], max_iter[stage], switch[stage] = _solver_settings(
+            dyn, stage, h)
+    return gammas, scales, memory, local, max_iter, switch
+
+
+def _history_ring(st):
+    """The predictor's increments of every stage in one ring buffer (stage,
+    slot, n, 3), oldest first, with the counts and the newest's slots."""
+    nstages = len(st.history)
+    depth = st.history[0].maxlen
+    ring = np.empty((nstages, depth) + st.s.shape)
+    counts = np.empty(nstages, dtype=np.int64)
+    heads = np.empty(nstages, dtype=np.int64)
+    for stage, history in enumerate(st.history):
+        for k, increment in enumerate(history):
+            ring[stage, k] = increment
+        counts[stage] = len(history)
+        heads[stage] = len(history) - 1
+    return ring, counts, heads
+
+
+def _keep_history(st, ring, counts, heads):
+    """The ring buffer back into the histories (views of it, oldest first)."""
+    depth = ring.shape[1]
+    for stage, history in enumerate(st.history):
+        history.clear()
+        for k in range(counts[stage] - 1, -1, -1):
+            history.append(ring[stage, (heads[stage] - k) % depth])
+
+
 def collective_block(dyn, steps):
     """Up to ``steps`` whole CollectivePRK steps as one compiled call
-    (:func:`_run`), for a small system whose every stage can take the fused
-    step and has a predictor history; the state is left after the last whole
-    step, the Atoms not written. Returns (steps done, sweeps in all, sweeps
-    and geometries of the last step); 0 steps: nothing changed, take the
-    general path."""
+    (:func:`_run`, or :func:`_run_frozen` for a frozen lattice), for a small
+    system whose every stage can take the fused step (frozen: whose one spin
+    operator has ``linear_pairs``) and has a predictor history; the state is
+    left after the last whole step, the Atoms not written. Returns (steps
+    done, sweeps in all, sweeps and geometries of the last step); 0 steps:
+    nothing changed, take the general path."""
     st = dyn._state
-    if not _blocks(type(dyn)) or dyn.frozen or not dyn.magnetic:
+    if not _blocks(type(dyn)) or not dyn.magnetic or not threads.small():
         return 0, 0, 0, 0
     if not all(st.history):
         return 0, 0, 0, 0
+    if dyn.frozen:
+        return _frozen_block(dyn, steps)
     got = _pieces(dyn)
     if got is None:
         return 0, 0, 0, 0
@@ -549,28 +671,8 @@ def collective_block(dyn, steps):
         return 0, 0, 0, 0
     ev = dyn.ev
     collective = _collective or _import_collective()
-    gammas = np.ascontiguousarray(dyn.gammas, dtype=float)
-    nstages = len(gammas)
-    n = len(st.s)
-    scales = np.empty((nstages, n))
-    memory = np.empty(nstages, dtype=np.int64)
-    local = np.empty(nstages, dtype=np.bool_)
-    max_iter = np.empty(nstages, dtype=np.int64)
-    switch = np.empty(nstages)
-    for stage, gamma in enumerate(dyn.gammas):
-        h = gamma * dyn.dt
-        scales[stage] = _scale(dyn, h)
-        memory[stage], local[stage], max_iter[stage], switch[stage] = _solver_settings(
-            dyn, stage, h)
-    depth = st.history[0].maxlen
-    ring = np.empty((nstages, depth, n, 3))
-    counts = np.empty(nstages, dtype=np.int64)
-    heads = np.empty(nstages, dtype=np.int64)
-    for stage, history in enumerate(st.history):
-        for k, increment in enumerate(history):  # oldest first
-            ring[stage, k] = increment
-        counts[stage] = len(history)
-        heads[stage] = len(history) - 1
+    gammas, scales, memory, local, max_iter, switch = _stage_arrays(dyn)
+    ring, counts, heads = _history_ring(st)
     theta = np.array(st.theta, dtype=float)
     settle = np.array(st.settle, dtype=float)
     orders = np.array(st.predictor_order, dtype=np.int64)
@@ -592,12 +694,50 @@ def collective_block(dyn, steps):
         st.theta = theta.tolist()
         st.settle = settle.tolist()
         st.predictor_order = orders.tolist()
-        for stage, history in enumerate(st.history):
-            history.clear()
-            for k in range(counts[stage] - 1, -1, -1):  # oldest first: views of the ring
-                history.append(ring[stage, (heads[stage] - k) % depth])
+        _keep_history(st, ring, counts, heads)
     if failed > 0:
         # a later stage gave up: the operator at q was refilled at that stage's
         # q̃; prepare it at q again for the general path
         st.ops = ev.spin_operators(st.q, out=st.ops, half=dyn.half_lists)
     return done, sweeps, last_sweeps, last_geometries
+
+
+_frozen_runners = {}
+
+
+def _frozen_runner(half):
+    """:func:`_run_frozen` over a half or a full pair list (compiled once each,
+    cached on disk)."""
+    fn = _frozen_runners.get(half)
+    if fn is None:
+        solve = kernels.midpoint_solve_half if half else kernels.midpoint_solve
+        fn = _frozen_runners[half] = compile_with(
+            _run_frozen, {"solve": solve.serial, "extrapolate": kernels._extrapolate.serial,
+                          "best_order": kernels._best_order},
+            "half" if half else "full")
+    return fn
+
+
+def _frozen_block(dyn, steps):
+    """:func:`collective_block` for a frozen lattice."""
+    st = dyn._state
+    if dyn.atoms.constraints or len(st.ops) != 1 or not hasattr(st.ops[0], "linear_pairs"):
+        return 0, 0, 0, 0
+    pairs, c = st.ops[0].linear_pairs(False)
+    run = _frozen_runner(bool(pairs.half))
+    if not _pays(dyn, run):
+        return 0, 0, 0, 0
+    gammas, scales, memory, local, max_iter, switch = _stage_arrays(dyn)
+    ring, counts, heads = _history_ring(st)
+    theta = np.array(st.theta, dtype=float)
+    orders = np.array(st.predictor_order, dtype=np.int64)
+    done, s, carry_s, Wnext, sweeps, last_sweeps = run(
+        steps, st.s, dyn.dt, gammas, scales, st.carry_s, st.Wnext, dyn.tol, 64.0 * dyn.tol,
+        max_iter, theta, memory, local, switch, orders, ring, counts, heads, st.probe,
+        pairs.row, pairs.j, c, kernels._COEFFICIENTS)
+    if done:
+        st.s, st.carry_s, st.Wnext = s, carry_s, Wnext
+        st.theta = theta.tolist()
+        st.predictor_order = orders.tolist()
+        _keep_history(st, ring, counts, heads)
+    return done, sweeps, last_sweeps, 0
