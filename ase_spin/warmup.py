@@ -40,6 +40,8 @@ BUILTIN = [
     [("calculator, 108 atoms", 3, False, None, {})],
     [("CollectivePRK, 108 atoms", 3, False, "CollectivePRK", {}),
      ("CollectivePRK order 4, 108 atoms", 3, False, "CollectivePRK", {"order": 4}),
+     ("CollectivePRK, frozen lattice, 108 atoms", 3, False, "CollectivePRK",
+      {"lattice": "frozen"}),
      ("SuzukiTrotter, 108 atoms", 3, False, "SuzukiTrotter", {}),
      ("Langevin, 108 atoms", 3, False, "Langevin", _BATH),
      ("CollectivePRK + field + anisotropy, 108 atoms", 3, True, "CollectivePRK", {}),

@@ -60,6 +60,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 
 from ase_spin import CollectivePRK, SuzukiTrotter  # noqa: E402
 from ase_spin.hamiltonian import Want  # noqa: E402
+from ase_spin.md import fused  # noqa: E402
 from ase_spin.md.base import TimestepWarning  # noqa: E402
 from ase_spin.md.ode import reference_solution  # noqa: E402
 from ase_spin.scenes import cone  # noqa: E402
@@ -68,6 +69,11 @@ from ase_spin.spirit_peer import (SOLVERS, SpiritHeisenberg, load_spirit,  # noq
                                   run_collective, run_splitting, spirit_available)
 from ase_spin.threads import SERIAL_BELOW  # noqa: E402
 from machine import describe  # noqa: E402
+
+# the compiled blocks of small-system steps whatever a run's length (a short
+# run does not compile them, md/fused.py): compiled once in the warm-up below,
+# as a long run or `ase-spin compile` would
+fused.FUSE_AFTER_STEPS = 0
 
 CONE_DEG = 30.0
 SEED = 7
@@ -343,7 +349,9 @@ def main(argv=None):
                     s0 = cone(scene.nos, np.random.default_rng(SEED), CONE_DEG)
                     s_ref, t_ref = reference(scene, s0, args.t_end)
                     print(f"# DOP853 reference (rtol 1e-13): {t_ref:.1f} s")
-                    run_collective(scene, s0, 2, 2.0**-8, 2, threads=1)  # compile
+                    # compile, and load the compiled blocks of steps (fused.py): the
+                    # first step alone, then a block
+                    run_collective(scene, s0, 2, 2.0**-8, 4, threads=1)
                     check_conventions(scene, s0, s_ref, args.t_end)
                     th = threads if scene.nos >= SERIAL_BELOW else threads[:1]
                     rows = work_precision(scene, s0, s_ref, args.t_end, th, repeats,
