@@ -5,14 +5,15 @@ machine code in its disk cache (see :mod:`ase_spin.compilation`). This module
 makes those first calls on purpose, so that a later run starts warm: on a
 cluster's login node before jobs are submitted, in a container image, after an
 install. It runs, for every scene, one evaluation through the calculator
-(energy, forces, stress, magnetic forces) and two steps of an integrator,
-writing nothing: exactly the kernels that scene needs.
+(energy, forces, stress, magnetic forces) and four steps of an integrator
+(a small system's last three as one block of compiled steps, as ``run``
+takes them), writing nothing: exactly the kernels that scene needs.
 
 Without input files it runs a built-in set: fcc Co with Lennard-Jones and
 Bethe–Slater exchange, alone and with a Zeeman field and uniaxial anisotropy,
 at 108 atoms (the serial kernels of small systems) and 2048 atoms (the
-threaded ones), through ``CollectivePRK`` (orders 2 and 4), ``SuzukiTrotter``
-and ``Langevin``. Other terms (EAM, DMI, ...) compile on first use, or give
+threaded ones), through ``CollectivePRK`` (orders 2 and 4, and with a frozen
+lattice), ``SuzukiTrotter`` and ``Langevin``. Other terms (EAM, DMI, ...) compile on first use, or give
 their input file.
 
 The tasks after the first run in ``jobs`` processes at once (numba compiles
