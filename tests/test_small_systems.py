@@ -379,8 +379,8 @@ def _state_of(atoms, dyn):
 
 
 @pytest.mark.parametrize("scene, order", [("chain", 2), ("chain", 4), ("chain", 6),
-                                          ("fcc", 2), ("fcc", 4), ("frozen", 2),
-                                          ("frozen", 6)])
+                                          ("fcc", 2), ("fcc", 4), ("mixed", 2),
+                                          ("frozen", 2), ("frozen", 6), ("frozen-mixed", 4)])
 def test_run_in_blocks_equals_step_by_step_bitwise(scene, order, monkeypatch):
     """run() takes the steps between observers as blocks of compiled steps
     (fused.collective_block; a frozen lattice: the spins-only step); every
@@ -397,8 +397,13 @@ def test_run_in_blocks_equals_step_by_step_bitwise(scene, order, monkeypatch):
             dyn = CollectivePRK(atoms, 2.0**-6, hbar=1.0, precession="spin", order=order)
         else:
             atoms = fcc_cobalt(3)
-            dyn = CollectivePRK(atoms, (1.0 if scene == "frozen" else 0.2) * units.fs,
-                                order=order, lattice="frozen" if scene == "frozen" else "moving")
+            if scene.endswith("mixed"):  # every fourth atom without a moment
+                moments = atoms.get_initial_magnetic_moments()
+                moments[::4] = 0.0
+                atoms.set_initial_magnetic_moments(moments)
+            frozen = scene.startswith("frozen")
+            dyn = CollectivePRK(atoms, (1.0 if frozen else 0.2) * units.fs, order=order,
+                                lattice="frozen" if frozen else "moving")
         frames = []
         dyn.attach(lambda: frames.append((dyn.nsteps, atoms.positions.copy(),
                                           get_spins(atoms))), interval=7)
