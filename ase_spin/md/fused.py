@@ -43,8 +43,8 @@ _DONE, _GIVE_UP = 0, 1
 
 def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, scale, tol,
           first_tol, floor, max_iter, theta, lattice, op_q, op_t, reference, half_skin,
-          settled_tol, qtol_floor, memory, local, switch, predict, coef, hs, n_history,
-          probe):
+          settled_tol, qtol_floor, memory, local, switch, chebyshev, predict, coef, hs,
+          n_history, probe):
     """The skeleton of the fused step (compiled with ``lattice_forces``,
     ``spin_forces``, ``spin_geometry`` and ``spin_couplings`` bound to the
     terms' pieces): CollectivePRK._coupled_step for one spin operator on a
@@ -56,7 +56,8 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     ``first_tol``, the others at ``tol`` (collective.first_tolerance).
     ``memory``, ``local``: the midpoint solver (kernels.midpoint_solve_half);
     a solve contracting by more than ``switch`` per sweep also gives up, so
-    that CollectivePRK's ``solver="auto"`` makes its switch on the general path.
+    that CollectivePRK's ``solver="auto"`` makes its switch on the general path;
+    ``chebyshev``: its Jacobi sweeps accelerated as there (kernels.chebyshev_bound).
     With ``predict``, W is not read but predicted here as CollectivePRK._predict
     does (normalise(s + Σ c_m D_m), coefficients ``coef`` over the increments
     ``hs``, newest first, padded), and the returned order is the one that would
@@ -112,7 +113,8 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
         use_tol = first_tol if solves == 0 else tol
         its, delta, status, which, measured, moved_w = solve_half(  # noqa: F821
             1, row, nbr, c, s, W, Wnext, stilde, scale, use_tol, floor, max_iter,
-            min(1.0, 2.0 * theta), carry_s, carry, memory, local)
+            min(1.0, 2.0 * theta), carry_s, carry, memory, local,
+            kernels.chebyshev_bound(theta, chebyshev))
         if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch):
             return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s)
         if 0.0 <= measured < 1.0:  # observed (−1: none was)
@@ -157,9 +159,9 @@ def _newest(ring, stage, head, count, k):
 
 
 def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, carry_mid,
-         Wnext, tol, fraction, floor, max_iter, theta, settle, memory, local, switch, orders,
-         ring, counts, heads, probe, lattice, op_q, op_t, reference, half_skin, settled_tol,
-         qtol_floor, coefficients):
+         Wnext, tol, fraction, floor, max_iter, theta, settle, memory, local, switch,
+         chebyshev, orders, ring, counts, heads, probe, lattice, op_q, op_t, reference,
+         half_skin, settled_tol, qtol_floor, coefficients):
     """Up to ``steps`` whole steps (every stage γ_k h of the composition) of the
     fused step (compiled with ``fused_step`` bound to :func:`_step` of the
     terms' pieces), as CollectivePRK takes them one by one with nothing
@@ -207,7 +209,7 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
                 q, p, s, FL, m, gammas[stage] * dt, carry_q, carry_p, carry_s, carry_mid,
                 hs[0], Wnext, scales[stage], tol, first_tol, floor, max_iter[stage],
                 theta[stage], lattice, oq, ot, reference, half_skin, settled_tol, qtol_floor,
-                memory[stage], local[stage], switch[stage], count > 0,
+                memory[stage], local[stage], switch[stage], chebyshev[stage], count > 0,
                 coefficients[min(orders[stage], count - 1)], hs, count, probe)
             if status != _DONE:
                 failed = stage
@@ -244,8 +246,8 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
 
 
 def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_iter, theta,
-                memory, local, switch, orders, ring, counts, heads, probe, row, nbr, c,
-                coefficients):
+                memory, local, switch, chebyshev, orders, ring, counts, heads, probe, row, nbr,
+                c, coefficients):
     """:func:`_run` for a frozen lattice (CollectivePRK's spins-only step,
     ``_substep`` with ``lattice="frozen"``) with one spin operator of the form
     B_i = Σ_j c_k W_j (``linear_pairs``: row, nbr, c): per stage the
@@ -285,7 +287,7 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
             its, delta, status, which, measured, moved = solve(  # noqa: F821
                 1, row, nbr, c, s, W, Wnext, stilde, scales[stage], tol, floor,
                 max_iter[stage], min(1.0, 2.0 * theta[stage]), carry_s, carry, memory[stage],
-                local[stage])
+                local[stage], kernels.chebyshev_bound(theta[stage], chebyshev[stage]))
             if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch[stage]):
                 failed = True
                 break
@@ -491,18 +493,20 @@ def _pieces(dyn):
 
 def _solver_settings(dyn, stage, h):
     """(Anderson memory, locally exact sweep, sweeps allowed, contraction per
-    sweep above which to give up) of a stage's midpoint solves, as
-    CollectivePRK._solve chooses: with ``"auto"``, Jacobi until it contracts
-    slowly (then the general path makes the switch)."""
+    sweep above which to give up, whether the Jacobi sweeps are accelerated)
+    of a stage's midpoint solves, as CollectivePRK._solve chooses: with
+    ``"auto"``, accelerated Jacobi until it contracts slowly (then the general
+    path makes the switch)."""
     collective = _collective or _import_collective()
-    solver, max_iter, switch = dyn._solver, dyn.max_iter, np.inf
+    solver, max_iter, switch, chebyshev = dyn._solver, dyn.max_iter, np.inf, False
     if solver == "auto":
         solver = dyn._state.modes.get((stage, h), "jacobi")
         if solver == "jacobi":
             max_iter = min(max_iter, collective._AUTO_JACOBI_SWEEPS)
             switch = collective._AUTO_SWITCH
+            chebyshev = True
     memory, local = collective.SOLVERS[solver]
-    return memory, local, max_iter, switch
+    return memory, local, max_iter, switch, chebyshev
 
 
 def _scale(dyn, h):
@@ -528,7 +532,7 @@ def collective_step(dyn, h, stage):
     ev = dyn.ev
     scale = _scale(dyn, h)
     collective = _collective or _import_collective()
-    memory, local, max_iter, switch = _solver_settings(dyn, stage, h)
+    memory, local, max_iter, switch, chebyshev = _solver_settings(dyn, stage, h)
     history = st.history[stage]
     predict = bool(history) and _predicts(type(dyn))
     if predict:  # CollectivePRK._predict, inside the step
@@ -549,7 +553,8 @@ def collective_step(dyn, h, stage):
                                        64.0 * dyn.tol, max_iter, st.theta[stage], lattice_data,
                                        data_q, data_t, ev.neighbors.reference, 0.5 * ev.skin,
                                        dyn._settled_tol(), dyn._settled_qtol(0.0), memory,
-                                       local, switch, predict, coef, hs, n_history, st.probe)
+                                       local, switch, chebyshev, predict, coef, hs, n_history,
+                                       st.probe)
     if status != _DONE:
         return None
     st.theta[stage] = theta
@@ -612,12 +617,13 @@ def _stage_arrays(dyn):
     local = np.empty(nstages, dtype=np.bool_)
     max_iter = np.empty(nstages, dtype=np.int64)
     switch = np.empty(nstages)
+    chebyshev = np.empty(nstages, dtype=np.bool_)
     for stage, gamma in enumerate(dyn.gammas):
         h = gamma * dyn.dt
         scales[stage] = _scale(dyn, h)
-        memory[stage], local[stage], max_iter[stage], switch[stage] = _solver_settings(
-            dyn, stage, h)
-    return gammas, scales, memory, local, max_iter, switch
+        (memory[stage], local[stage], max_iter[stage], switch[stage],
+         chebyshev[stage]) = _solver_settings(dyn, stage, h)
+    return gammas, scales, memory, local, max_iter, switch, chebyshev
 
 
 def _history_ring(st):
@@ -671,7 +677,7 @@ def collective_block(dyn, steps):
         return 0, 0, 0, 0
     ev = dyn.ev
     collective = _collective or _import_collective()
-    gammas, scales, memory, local, max_iter, switch = _stage_arrays(dyn)
+    gammas, scales, memory, local, max_iter, switch, chebyshev = _stage_arrays(dyn)
     ring, counts, heads = _history_ring(st)
     theta = np.array(st.theta, dtype=float)
     settle = np.array(st.settle, dtype=float)
@@ -681,7 +687,8 @@ def collective_block(dyn, steps):
                             scales, st.carry_q, st.carry_p, st.carry_s, st.carry_mid,
                             st.Wnext, dyn.tol, collective.FIRST_SOLVE_FRACTION,
                             64.0 * dyn.tol, max_iter, theta, settle, memory, local, switch,
-                            orders, ring, counts, heads, st.probe, lattice_data, data_q,
+                            chebyshev, orders, ring, counts, heads, st.probe, lattice_data,
+                            data_q,
                             data_t, ev.neighbors.reference, 0.5 * ev.skin,
                             dyn._settled_tol(), dyn._settled_qtol(0.0),
                             kernels._COEFFICIENTS)
@@ -727,14 +734,14 @@ def _frozen_block(dyn, steps):
     run = _frozen_runner(bool(pairs.half))
     if not _pays(dyn, run):
         return 0, 0, 0, 0
-    gammas, scales, memory, local, max_iter, switch = _stage_arrays(dyn)
+    gammas, scales, memory, local, max_iter, switch, chebyshev = _stage_arrays(dyn)
     ring, counts, heads = _history_ring(st)
     theta = np.array(st.theta, dtype=float)
     orders = np.array(st.predictor_order, dtype=np.int64)
     done, s, carry_s, Wnext, sweeps, last_sweeps = run(
         steps, st.s, dyn.dt, gammas, scales, st.carry_s, st.Wnext, dyn.tol, 64.0 * dyn.tol,
-        max_iter, theta, memory, local, switch, orders, ring, counts, heads, st.probe,
-        pairs.row, pairs.j, c, kernels._COEFFICIENTS)
+        max_iter, theta, memory, local, switch, chebyshev, orders, ring, counts, heads,
+        st.probe, pairs.row, pairs.j, c, kernels._COEFFICIENTS)
     if done:
         st.s, st.carry_s, st.Wnext = s, carry_s, Wnext
         st.theta = theta.tolist()
