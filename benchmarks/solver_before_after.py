@@ -41,7 +41,7 @@ if kind == "lammps":
 else:
     from ase_spin import CollectivePRK, get_spins
     warm = fcc_scene(5)
-    CollectivePRK(warm, dt * units.fs, order=order, hbar=HBAR_LAMMPS).run(2)
+    CollectivePRK(warm, dt * units.fs, order=order, hbar=HBAR_LAMMPS).run(4)  # + a block
     atoms = fcc_scene(5)
     dyn = CollectivePRK(atoms, dt * units.fs, order=order, hbar=HBAR_LAMMPS)
     steps = int(round(500.0 / dt))

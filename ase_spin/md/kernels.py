@@ -380,6 +380,18 @@ chebyshev_mix_serial = serial_twin(chebyshev_mix)
 
 
 @nb.njit(cache=True, inline="always")
+def _mix_row(i, prev, g, omega):
+    """Row i of :func:`chebyshev_mix`, inside a sweep (right after g_i is written)."""
+    vx = prev[i, 0] + omega * (g[i, 0] - prev[i, 0])
+    vy = prev[i, 1] + omega * (g[i, 1] - prev[i, 1])
+    vz = prev[i, 2] + omega * (g[i, 2] - prev[i, 2])
+    inv = 1.0 / np.sqrt(vx * vx + vy * vy + vz * vz)
+    prev[i, 0] = vx * inv
+    prev[i, 1] = vy * inv
+    prev[i, 2] = vz * inv
+
+
+@nb.njit(cache=True, inline="always")
 def _copy_rows(src, dst):
     for i in range(src.shape[0]):
         dst[i, 0] = src[i, 0]
@@ -462,6 +474,9 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     delta = 0.0
     first = 0.0
     for it in range(1, max_iter + 1):
+        mixing = accelerating and it >= 2
+        if mixing:
+            omega = chebyshev_weight(it, omega, accel)
         for t in nb.prange(nthreads):
             m = 0.0
             for i in range(bounds[t], bounds[t + 1]):
@@ -482,6 +497,8 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
                 else:
                     d = _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
                                          carry_out)
+                if mixing:  # the next iterate too, over x_{k−1} (used if this is not the last)
+                    _mix_row(i, prev, nxt, omega)
                 m = max(m, d)
             change[t] = m
         delta = change.max()
@@ -492,14 +509,11 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
         previous = delta
         if memory > 0:
             anderson_mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
-        elif accelerating and it == 1:  # x₁ = g(x₀); x₀ kept
-            _copy_rows(cur, prev)
-            cur, nxt = nxt, cur
-            lab_cur, lab_nxt = lab_nxt, lab_cur
+        elif accelerating and it == 1:  # x₁ = g(x₀) is next; x₀ kept as x_{k−1}
+            cur, nxt, prev = nxt, prev, cur
+            lab_cur, lab_nxt, lab_prev = lab_nxt, lab_prev, lab_cur
         elif accelerating and not delta > CHEBYSHEV_GROWTH * first:
-            # x_{k+1} = x_{k−1} + ω (g(x_k) − x_{k−1}), written over x_{k−1}
-            omega = chebyshev_weight(it, omega, accel)
-            chebyshev_mix(nthreads, prev, nxt, omega)
+            # x_{k+1} = x_{k−1} + ω (g(x_k) − x_{k−1}), written over x_{k−1} in the sweep
             cur, prev = prev, cur
             lab_cur, lab_prev = lab_prev, lab_cur
         else:  # plain sweeps (also once the accelerated ones have diverged)
@@ -545,6 +559,9 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
     delta = 0.0
     first = 0.0
     for it in range(1, max_iter + 1):
+        mixing = accelerating and it >= 2
+        if mixing:
+            omega = chebyshev_weight(it, omega, accel)
         for t in nb.prange(nthreads):
             for i in range(bounds[t], bounds[t + 1]):
                 wx = cur[i, 0]
@@ -586,6 +603,8 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
                 else:
                     d = _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
                                          carry_out)
+                if mixing:  # the next iterate too, over x_{k−1} (used if this is not the last)
+                    _mix_row(i, prev, nxt, omega)
                 m = max(m, d)
             change[t] = m
         delta = change.max()
@@ -596,14 +615,11 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
         previous = delta
         if memory > 0:
             anderson_mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
-        elif accelerating and it == 1:  # x₁ = g(x₀); x₀ kept
-            _copy_rows(cur, prev)
-            cur, nxt = nxt, cur
-            lab_cur, lab_nxt = lab_nxt, lab_cur
+        elif accelerating and it == 1:  # x₁ = g(x₀) is next; x₀ kept as x_{k−1}
+            cur, nxt, prev = nxt, prev, cur
+            lab_cur, lab_nxt, lab_prev = lab_nxt, lab_prev, lab_cur
         elif accelerating and not delta > CHEBYSHEV_GROWTH * first:
-            # x_{k+1} = x_{k−1} + ω (g(x_k) − x_{k−1}), written over x_{k−1}
-            omega = chebyshev_weight(it, omega, accel)
-            chebyshev_mix(nthreads, prev, nxt, omega)
+            # x_{k+1} = x_{k−1} + ω (g(x_k) − x_{k−1}), written over x_{k−1} in the sweep
             cur, prev = prev, cur
             lab_cur, lab_prev = lab_prev, lab_cur
         else:  # plain sweeps (also once the accelerated ones have diverged)
