@@ -49,3 +49,22 @@ def test_each_kernel_is_compiled_for_one_set_of_argument_types():
     assert len(signatures) > 20, signatures  # the scan saw the kernels
     several = {k: v for k, v in signatures.items() if len(v) > 1 and k not in SEVERAL}
     assert not several, json.dumps(several, indent=1)
+
+
+def test_compile_with_names_a_skeleton_after_the_package_source(monkeypatch):
+    """A skeleton compiled with bound functions is cached under a name carrying
+    a hash of the whole package's source: an edit of any helper it runs (in
+    any module) gives a new cache entry instead of the stale machine code."""
+    from ase_spin.md import fused, kernels
+    from ase_spin.terms import base
+
+    def name():
+        fn = base.compile_with(fused._run_frozen, {"solve": kernels.midpoint_solve.serial,
+                                                   "extrapolate": kernels._extrapolate.serial,
+                                                   "best_order": kernels._best_order}, "x")
+        return fn.py_func.__qualname__
+
+    assert base._source_digest() and name() == name()
+    first = name()
+    monkeypatch.setattr(base, "_package_digest", b"another source")
+    assert name() != first

@@ -381,14 +381,13 @@ chebyshev_mix_serial = serial_twin(chebyshev_mix)
 
 @nb.njit(cache=True, inline="always")
 def _mix_row(i, prev, g, omega):
-    """Row i of :func:`chebyshev_mix`, inside a sweep (right after g_i is written)."""
-    vx = prev[i, 0] + omega * (g[i, 0] - prev[i, 0])
-    vy = prev[i, 1] + omega * (g[i, 1] - prev[i, 1])
-    vz = prev[i, 2] + omega * (g[i, 2] - prev[i, 2])
-    inv = 1.0 / np.sqrt(vx * vx + vy * vy + vz * vz)
-    prev[i, 0] = vx * inv
-    prev[i, 1] = vy * inv
-    prev[i, 2] = vz * inv
+    """Row i of the accelerated iterate, inside a sweep (right after g_i is
+    written): prev_i + ω (g_i − prev_i), not normalised (the sweep's map takes
+    any W: its length error, 1 − ω of the one two sweeps before, dies out
+    with the rest, and the fixed point, g(W) = W, is a unit vector)."""
+    prev[i, 0] += omega * (g[i, 0] - prev[i, 0])
+    prev[i, 1] += omega * (g[i, 1] - prev[i, 1])
+    prev[i, 2] += omega * (g[i, 2] - prev[i, 2])
 
 
 @nb.njit(cache=True, inline="always")

@@ -583,6 +583,30 @@ def compile_pair_pass(field, energy, name):
                         parallel=True)
 
 
+_package_digest = None
+
+
+def _source_digest():
+    """SHA-1 of every source file of this package (once per process): what a
+    skeleton compiled with :func:`compile_with` may run, through the functions
+    bound into it and the helpers they call in turn."""
+    global _package_digest
+    if _package_digest is None:
+        import hashlib
+        from pathlib import Path
+
+        digest = hashlib.sha1()
+        root = Path(__file__).resolve().parent.parent
+        for path in sorted(root.rglob("*.py")):
+            try:
+                digest.update(str(path.relative_to(root)).encode())
+                digest.update(path.read_bytes())
+            except OSError:  # unreadable: the code hashes alone for it
+                pass
+        _package_digest = digest.digest()
+    return _package_digest
+
+
 def compile_with(skeleton, functions, name, parallel=False):
     """``skeleton`` compiled with the compiled ``functions`` (a mapping from
     the global names it calls to dispatchers) bound in, cached on disk.
@@ -590,17 +614,21 @@ def compile_with(skeleton, functions, name, parallel=False):
     numba cannot cache a kernel that takes functions as arguments or is built
     in a closure; a copy of the skeleton's code with the functions as globals
     and a name of its own can be. The name carries a hash of the functions'
-    names and code, so a cached skeleton does not outlive an edit of the
-    functions it calls, and two combinations never share a cache entry."""
+    names and code and of the package's source files (numba keys a cached
+    kernel by its own file only, while the functions bound here are compiled
+    into the skeleton with the helpers they call, from other files), so a
+    cached skeleton does not outlive an edit of anything it runs, and two
+    combinations never share a cache entry."""
     import hashlib
     import types
 
-    code = hashlib.sha1()
+    code = hashlib.sha1(_source_digest())
     for key, f in sorted(functions.items()):
         py = f.py_func
         code.update(f"{key}={py.__module__}.{py.__qualname__}".encode())
         code.update(py.__code__.co_code)
         code.update(repr((py.__code__.co_consts, py.__code__.co_names)).encode())
+
     glob = dict(skeleton.__globals__, **functions)
     fn = types.FunctionType(skeleton.__code__, glob, f"{skeleton.__name__}_{name}")
     fn.__qualname__ = f"{skeleton.__name__}_{name}_{code.hexdigest()[:12]}"
