@@ -420,27 +420,35 @@ def test_run_in_blocks_equals_step_by_step_bitwise(scene, order, monkeypatch):
             assert np.array_equal(a, b)
 
 
-def test_block_gives_up_at_a_later_stage_and_the_general_path_goes_on(monkeypatch):
-    """Order 4 with a small skin: pair-list rebuilds make a block stop, also
-    at a stage after the first, where the step is undone to its start (the
-    operator at q prepared again). The run is bit for bit that of the
-    general path."""
-    failed = []
-    real = fused._runner
+def _spy_runners(monkeypatch, name):
+    """Record (arguments, result) of every call of the block runners that
+    ``fused.<name>`` makes (its dispatcher's cache attributes kept, for
+    fused._pays)."""
+    calls = []
+    real = getattr(fused, name)
 
-    def spy_runner(step):
-        run = real(step)
+    def spy(*key):
+        run = real(*key)
 
         def wrapped(*args):
             result = run(*args)
-            failed.append(result[1])
+            calls.append((args, result))
             return result
 
         wrapped.overloads = run.overloads
         wrapped._cache = run._cache
         return wrapped
 
-    monkeypatch.setattr(fused, "_runner", spy_runner)
+    monkeypatch.setattr(fused, name, spy)
+    return calls
+
+
+def test_block_gives_up_at_a_later_stage_and_the_general_path_goes_on(monkeypatch):
+    """Order 4 with a small skin: pair-list rebuilds make a block stop, also
+    at a stage after the first, where the step is undone to its start (the
+    operator at q prepared again). The run is bit for bit that of the
+    general path."""
+    calls = _spy_runners(monkeypatch, "_runner")
     runs = []
     for general in (False, True):
         if general:
@@ -451,7 +459,7 @@ def test_block_gives_up_at_a_later_stage_and_the_general_path_goes_on(monkeypatc
         dyn.run(60)
         runs.append(_state_of(atoms, dyn) + (dyn.ev.neighbors.builds,))
     assert runs[0][-1] > 3  # rebuilt within the run
-    assert any(stage > 0 for stage in failed), failed
+    assert any(result[1] > 0 for _, result in calls), calls
     for a, b in zip(*runs):
         assert np.array_equal(a, b)
 
@@ -544,22 +552,7 @@ def test_a_block_stopping_mid_way_hands_that_step_to_the_general_path(order, mon
     general path's run."""
     from ase_spin.md import collective
 
-    stops = []
-    real = fused._frozen_runner
-
-    def spy_runner(half):
-        run = real(half)
-
-        def wrapped(*args):
-            result = run(*args)
-            stops.append((args[0], result[0]))
-            return result
-
-        wrapped.overloads = run.overloads
-        wrapped._cache = run._cache
-        return wrapped
-
-    monkeypatch.setattr(fused, "_frozen_runner", spy_runner)
+    calls = _spy_runners(monkeypatch, "_frozen_runner")
     switch = collective._AUTO_SWITCH
     runs = []
     for general in (False, True):
@@ -575,7 +568,7 @@ def test_a_block_stopping_mid_way_hands_that_step_to_the_general_path(order, mon
         dyn.run(40)
         monkeypatch.setattr(collective, "_AUTO_SWITCH", switch)
         runs.append((get_spins(atoms), dyn.total_iterations, dict(dyn._state.modes)))
-    assert any(0 < done < asked for asked, done in stops), stops
+    assert any(0 < result[0] < args[0] for args, result in calls), calls
     assert runs[0][2] and runs[0][2] == runs[1][2]
     if order == 4:
         assert [stage for stage, _ in runs[0][2]] == [2]

@@ -158,6 +158,17 @@ def _newest(ring, stage, head, count, k):
     return ring[stage, (head - k) % ring.shape[1] if k < count else head]
 
 
+@nb.njit(cache=True, inline="always")
+def _history(ring, stage, head, count):
+    """A stage's increments, newest first, as kernels._last gives them."""
+    return (_newest(ring, stage, head, count, 0), _newest(ring, stage, head, count, 1),
+            _newest(ring, stage, head, count, 2), _newest(ring, stage, head, count, 3),
+            _newest(ring, stage, head, count, 4), _newest(ring, stage, head, count, 5),
+            _newest(ring, stage, head, count, 6), _newest(ring, stage, head, count, 7),
+            _newest(ring, stage, head, count, 8), _newest(ring, stage, head, count, 9),
+            _newest(ring, stage, head, count, 10), _newest(ring, stage, head, count, 11))
+
+
 def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, carry_mid,
          Wnext, tol, fraction, floor, max_iter, theta, settle, memory, local, switch,
          chebyshev, orders, ring, counts, heads, probe, lattice, op_q, op_t, reference,
@@ -197,12 +208,7 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
         geometries = 0
         for stage in range(nstages):
             head, count = heads[stage], counts[stage]
-            hs = (_newest(ring, stage, head, count, 0), _newest(ring, stage, head, count, 1),
-                  _newest(ring, stage, head, count, 2), _newest(ring, stage, head, count, 3),
-                  _newest(ring, stage, head, count, 4), _newest(ring, stage, head, count, 5),
-                  _newest(ring, stage, head, count, 6), _newest(ring, stage, head, count, 7),
-                  _newest(ring, stage, head, count, 8), _newest(ring, stage, head, count, 9),
-                  _newest(ring, stage, head, count, 10), _newest(ring, stage, head, count, 11))
+            hs = _history(ring, stage, head, count)
             first_tol = min(1e-6, max(tol, fraction * settle[stage]))
             (status, qt, P, s_new, cq, cs, FLt, W, Wn, th, its, geos, order, moved,
              increment) = fused_step(  # noqa: F821 - bound per combination of terms
@@ -272,12 +278,7 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
         failed = False
         for stage in range(nstages):
             head, count = heads[stage], counts[stage]
-            hs = (_newest(ring, stage, head, count, 0), _newest(ring, stage, head, count, 1),
-                  _newest(ring, stage, head, count, 2), _newest(ring, stage, head, count, 3),
-                  _newest(ring, stage, head, count, 4), _newest(ring, stage, head, count, 5),
-                  _newest(ring, stage, head, count, 6), _newest(ring, stage, head, count, 7),
-                  _newest(ring, stage, head, count, 8), _newest(ring, stage, head, count, 9),
-                  _newest(ring, stage, head, count, 10), _newest(ring, stage, head, count, 11))
+            hs = _history(ring, stage, head, count)
             W = np.empty_like(s)
             extrapolate(coefficients[min(orders[stage], count - 1)], hs[0], hs[1],  # noqa: F821
                         hs[2], hs[3], hs[4], hs[5], hs[6], hs[7], hs[8], hs[9], hs[10], hs[11],

@@ -231,6 +231,16 @@ def _solve_small(A, b, k):
     return x
 
 
+@nb.njit(cache=True, inline="always")
+def _unit_or_zero(x, y, z):
+    """(x, y, z)/|(x, y, z)|, or the zero vector as it is (a non-magnetic row)."""
+    vv = x * x + y * y + z * z
+    if vv > 0.0:
+        inv = 1.0 / np.sqrt(vv)
+        return x * inv, y * inv, z * inv
+    return x, y, z
+
+
 @nb.njit(cache=True, parallel=threads.prange_only())
 def anderson_mix(it, x, g, fprev, gprev, dF, dG, gram):
     r"""Anderson acceleration of the fixed-point iteration x ← g(x) on unit
@@ -301,15 +311,7 @@ def anderson_mix(it, x, g, fprev, gprev, dF, dG, gram):
             vx -= gamma[a] * dG[a, i, 0]
             vy -= gamma[a] * dG[a, i, 1]
             vz -= gamma[a] * dG[a, i, 2]
-        vv = vx * vx + vy * vy + vz * vz
-        if vv > 0.0:
-            inv = 1.0 / np.sqrt(vv)
-            vx *= inv
-            vy *= inv
-            vz *= inv
-        x[i, 0] = vx
-        x[i, 1] = vy
-        x[i, 2] = vz
+        x[i, 0], x[i, 1], x[i, 2] = _unit_or_zero(vx, vy, vz)
 
 
 anderson_mix_serial = serial_twin(anderson_mix)
@@ -362,18 +364,10 @@ def chebyshev_mix(nthreads, prev, g, omega):
     n = prev.shape[0]
     for t in nb.prange(nthreads):
         for i in range((n * t) // nthreads, (n * (t + 1)) // nthreads):
-            vx = prev[i, 0] + omega * (g[i, 0] - prev[i, 0])
-            vy = prev[i, 1] + omega * (g[i, 1] - prev[i, 1])
-            vz = prev[i, 2] + omega * (g[i, 2] - prev[i, 2])
-            vv = vx * vx + vy * vy + vz * vz
-            if vv > 0.0:
-                inv = 1.0 / np.sqrt(vv)
-                vx *= inv
-                vy *= inv
-                vz *= inv
-            prev[i, 0] = vx
-            prev[i, 1] = vy
-            prev[i, 2] = vz
+            prev[i, 0], prev[i, 1], prev[i, 2] = _unit_or_zero(
+                prev[i, 0] + omega * (g[i, 0] - prev[i, 0]),
+                prev[i, 1] + omega * (g[i, 1] - prev[i, 1]),
+                prev[i, 2] + omega * (g[i, 2] - prev[i, 2]))
 
 
 chebyshev_mix_serial = serial_twin(chebyshev_mix)
