@@ -417,7 +417,7 @@ class _Step:
 
     def __enter__(self):
         self.n = n = self.adaptive._choose()
-        # a probe of another thread count: one step, not a block of them
+        # a probe of another thread count: a short block at most (SpinLatticeDynamics._irun)
         self.probing = self.adaptive._probing
         self.previous = previous = nb.get_num_threads()
         if n != previous:

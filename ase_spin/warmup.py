@@ -13,8 +13,8 @@ Without input files it runs a built-in set: fcc Co with Lennard-Jones and
 Bethe–Slater exchange, alone and with a Zeeman field and uniaxial anisotropy,
 at 108 atoms (the serial kernels of small systems) and 2048 atoms (the
 threaded ones), through ``CollectivePRK`` (orders 2 and 4, and with a frozen
-lattice), ``SuzukiTrotter`` and ``Langevin``. Other terms (EAM, DMI, ...) compile on first use, or give
-their input file.
+lattice), ``SuzukiTrotter`` and ``Langevin``. Other terms (EAM, DMI, ...)
+compile on first use, or give their input file.
 
 The tasks after the first run in ``jobs`` processes at once (numba compiles
 on one core); the first one, alone, compiles the kernels every scene shares.

@@ -351,9 +351,7 @@ class CollectivePRK(SpinLatticeDynamics):
         sweeps, how far W moved from the starting guess, the rounding error of s̃)."""
         st = self._state
         tol = self.tol if tol is None else tol
-        scale = st.scales.get(h)
-        if scale is None:  # c_i = hσ r_i/ħ, one array per stage step size
-            scale = st.scales[h] = (h * self.sigma / self.hbar) * st.rate
+        scale = self._scale(h)
         carry = np.zeros_like(s)
         stilde = np.zeros_like(s)
         solver = self._solver
@@ -394,6 +392,14 @@ class CollectivePRK(SpinLatticeDynamics):
         if status == kernels.NOT_CONVERGED:
             self._raise_not_converged(operators, W, its, delta, scale, mean)
         return W, stilde, its, moved, carry
+
+    def _scale(self, h):
+        """c_i = hσ r_i/ħ of a stage of size h (one array per step size, kept)."""
+        st = self._state
+        scale = st.scales.get(h)
+        if scale is None:
+            scale = st.scales[h] = (h * self.sigma / self.hbar) * st.rate
+        return scale
 
     def _run_solver(self, s, operators, W, h, stage, mean, scale, stilde, carry, tol, solver,
                     max_iter):

@@ -305,9 +305,6 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
             its_step += its
         if failed:
             s, carry_s, Wnext = s0, cs0, W0
-            for stage in range(nstages):
-                new_theta[stage] = theta[stage]
-                new_orders[stage] = orders[stage]
             break
         for stage in range(nstages):
             theta[stage] = new_theta[stage]
@@ -489,7 +486,7 @@ def _pieces(dyn):
     reference = ev.neighbors.reference
     if reference is None or reference.shape != st.q.shape:
         return None
-    return step, lattice_data, piece_q[3], piece_t[3], pieces
+    return step, lattice_data, piece_q[3], piece_t[3]
 
 
 def _solver_settings(dyn, stage, h):
@@ -510,14 +507,6 @@ def _solver_settings(dyn, stage, h):
     return memory, local, max_iter, switch, chebyshev
 
 
-def _scale(dyn, h):
-    st = dyn._state
-    scale = st.scales.get(h)
-    if scale is None:  # as CollectivePRK._solve: c_i = hσ r_i/ħ
-        scale = st.scales[h] = (h * dyn.sigma / dyn.hbar) * st.rate
-    return scale
-
-
 def collective_step(dyn, h, stage):
     """CollectivePRK's second-order step of size h as one compiled call, when
     the system is small (light kernels serial: threads.small()) and every term
@@ -526,12 +515,12 @@ def collective_step(dyn, h, stage):
     got = _pieces(dyn)
     if got is None:
         return None
-    step, lattice_data, data_q, data_t, _ = got
+    step, lattice_data, data_q, data_t = got
     if not threads.tiny() and not _pays(dyn, step):
         return None
     st = dyn._state
     ev = dyn.ev
-    scale = _scale(dyn, h)
+    scale = dyn._scale(h)
     collective = _collective or _import_collective()
     memory, local, max_iter, switch, chebyshev = _solver_settings(dyn, stage, h)
     history = st.history[stage]
@@ -621,7 +610,7 @@ def _stage_arrays(dyn):
     chebyshev = np.empty(nstages, dtype=np.bool_)
     for stage, gamma in enumerate(dyn.gammas):
         h = gamma * dyn.dt
-        scales[stage] = _scale(dyn, h)
+        scales[stage] = dyn._scale(h)
         (memory[stage], local[stage], max_iter[stage], switch[stage],
          chebyshev[stage]) = _solver_settings(dyn, stage, h)
     return gammas, scales, memory, local, max_iter, switch, chebyshev
@@ -670,7 +659,7 @@ def collective_block(dyn, steps):
     got = _pieces(dyn)
     if got is None:
         return 0, 0, 0, 0
-    step, lattice_data, data_q, data_t, _ = got
+    step, lattice_data, data_q, data_t = got
     run = _runner(step)
     # its compilation (~5 s: the step's code is compiled again inside it) is
     # paid as the fused step's is, whatever the size

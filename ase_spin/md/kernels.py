@@ -356,27 +356,10 @@ def chebyshev_bound(theta, on):
     return CHEBYSHEV_MARGIN * theta
 
 
-@nb.njit(cache=True, parallel=threads.prange_only())
-def chebyshev_mix(nthreads, prev, g, omega):
-    """prev ← normalise(prev + ω (g − prev)) row by row (rows of zeros, the
-    non-magnetic atoms, stay zero): the accelerated iterate, written over the
-    one before the last."""
-    n = prev.shape[0]
-    for t in nb.prange(nthreads):
-        for i in range((n * t) // nthreads, (n * (t + 1)) // nthreads):
-            prev[i, 0], prev[i, 1], prev[i, 2] = _unit_or_zero(
-                prev[i, 0] + omega * (g[i, 0] - prev[i, 0]),
-                prev[i, 1] + omega * (g[i, 1] - prev[i, 1]),
-                prev[i, 2] + omega * (g[i, 2] - prev[i, 2]))
-
-
-chebyshev_mix_serial = serial_twin(chebyshev_mix)
-
-
 @nb.njit(cache=True, inline="always")
 def _mix_row(i, prev, g, omega):
-    """Row i of the accelerated iterate, inside a sweep (right after g_i is
-    written): prev_i + ω (g_i − prev_i), not normalised (the sweep's map takes
+    """Row i of the accelerated iterate x_{k+1} = x_{k−1} + ω (g(x_k) − x_{k−1}),
+    written over x_{k−1} inside a sweep (right after g_i is written), not normalised (the sweep's map takes
     any W: its length error, 1 − ω of the one two sweeps before, dies out
     with the rest, and the fixed point, g(W) = W, is a unit vector)."""
     prev[i, 0] += omega * (g[i, 0] - prev[i, 0])
@@ -385,11 +368,18 @@ def _mix_row(i, prev, g, omega):
 
 
 @nb.njit(cache=True, inline="always")
-def _copy_rows(src, dst):
-    for i in range(src.shape[0]):
-        dst[i, 0] = src[i, 0]
-        dst[i, 1] = src[i, 1]
-        dst[i, 2] = src[i, 2]
+def _next_buffers(it, delta, first, accelerating, cur, nxt, prev, lab_cur, lab_nxt, lab_prev):
+    """The buffers' roles for the next plain or accelerated sweep (current
+    iterate, g of it, x_{k−1}; their labels 0: W, 1: Wnext, 2: the solver's
+    own) and whether it is accelerated. Plain: x_{k+1} = g(x_k). Accelerated:
+    after the first sweep x₁ = g(x₀) with x₀ kept; then x_{k+1}, written over
+    x_{k−1} in the sweep (:func:`_mix_row`); back to plain sweeps for good once
+    a change exceeds CHEBYSHEV_GROWTH times the first."""
+    if accelerating and it == 1:
+        return nxt, prev, cur, lab_nxt, lab_prev, lab_cur, True
+    if accelerating and not delta > CHEBYSHEV_GROWTH * first:
+        return prev, nxt, cur, lab_prev, lab_nxt, lab_cur, True
+    return nxt, cur, prev, lab_nxt, lab_cur, lab_prev, False
 
 
 @nb.njit(cache=True, inline="always")
@@ -397,13 +387,12 @@ def _result_buffer(nxt, label, Wnext):
     """Which of the two caller's buffers holds the result (0: W, 1: Wnext): the
     result in the solver's own third buffer is copied to Wnext."""
     if label == 2:
-        _copy_rows(nxt, Wnext)
+        Wnext[:] = nxt
         return 1
     return label
 
 
-@threaded(anderson_mix=lambda: anderson_mix_serial,
-          chebyshev_mix=lambda: chebyshev_mix_serial)
+@threaded(anderson_mix=lambda: anderson_mix_serial)
 def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
                    theta0, carry, carry_out, memory=MEMORY, local=True, accel=0.0):
     r"""Solve the spherical-midpoint equation for fixed pair couplings J̄_ij:
@@ -424,7 +413,7 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     m > 0, the next iterate is the Anderson combination of the last m + 1
     sweeps (:func:`anderson_mix`); else, with ``accel`` = θ̂ > 0, the Chebyshev
     semi-iteration of the plain sweeps for a spectrum on [−iθ̂, iθ̂]
-    (:func:`chebyshev_weight`, :func:`chebyshev_mix`; θ̂ a bound on the plain
+    (:func:`chebyshev_weight`, :func:`_mix_row`; θ̂ a bound on the plain
     iteration's contraction, which it then measures from its first two sweeps
     only); else g(W). Rows with s_i = 0 (non-magnetic atoms) are skipped.
 
@@ -502,23 +491,15 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
         previous = delta
         if memory > 0:
             anderson_mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
-        elif accelerating and it == 1:  # x₁ = g(x₀) is next; x₀ kept as x_{k−1}
-            cur, nxt, prev = nxt, prev, cur
-            lab_cur, lab_nxt, lab_prev = lab_nxt, lab_prev, lab_cur
-        elif accelerating and not delta > CHEBYSHEV_GROWTH * first:
-            # x_{k+1} = x_{k−1} + ω (g(x_k) − x_{k−1}), written over x_{k−1} in the sweep
-            cur, prev = prev, cur
-            lab_cur, lab_prev = lab_prev, lab_cur
-        else:  # plain sweeps (also once the accelerated ones have diverged)
-            accelerating = False
-            cur, nxt = nxt, cur
-            lab_cur, lab_nxt = lab_nxt, lab_cur
+        else:
+            (cur, nxt, prev, lab_cur, lab_nxt, lab_prev,
+             accelerating) = _next_buffers(it, delta, first, accelerating, cur, nxt, prev,
+                                           lab_cur, lab_nxt, lab_prev)
     return (max_iter, delta, NOT_CONVERGED, _result_buffer(nxt, lab_nxt, Wnext), measured,
             first)
 
 
-@threaded(anderson_mix=lambda: anderson_mix_serial,
-          chebyshev_mix=lambda: chebyshev_mix_serial)
+@threaded(anderson_mix=lambda: anderson_mix_serial)
 def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor,
                         max_iter, theta0, carry, carry_out, memory=MEMORY, local=True,
                         accel=0.0):
@@ -608,28 +589,23 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
         previous = delta
         if memory > 0:
             anderson_mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
-        elif accelerating and it == 1:  # x₁ = g(x₀) is next; x₀ kept as x_{k−1}
-            cur, nxt, prev = nxt, prev, cur
-            lab_cur, lab_nxt, lab_prev = lab_nxt, lab_prev, lab_cur
-        elif accelerating and not delta > CHEBYSHEV_GROWTH * first:
-            # x_{k+1} = x_{k−1} + ω (g(x_k) − x_{k−1}), written over x_{k−1} in the sweep
-            cur, prev = prev, cur
-            lab_cur, lab_prev = lab_prev, lab_cur
-        else:  # plain sweeps (also once the accelerated ones have diverged)
-            accelerating = False
-            cur, nxt = nxt, cur
-            lab_cur, lab_nxt = lab_nxt, lab_cur
+        else:
+            (cur, nxt, prev, lab_cur, lab_nxt, lab_prev,
+             accelerating) = _next_buffers(it, delta, first, accelerating, cur, nxt, prev,
+                                           lab_cur, lab_nxt, lab_prev)
     return (max_iter, delta, NOT_CONVERGED, _result_buffer(nxt, lab_nxt, Wnext), measured,
             first)
 
 
 @threaded()
-def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, local=True):
+def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, local, prev,
+                    omega):
     """One sweep of the midpoint iteration for given midpoint fields B̄ = ``B``
     (the sum of every spin operator's field at W): the locally exact update of
     :func:`_local_midpoint_update` (``local``) or the Jacobi update of
     :func:`_midpoint_update` for every magnetic spin (rows with s_i = 0 are
-    skipped), W → ``Wnext``. Returns max |ΔW| over all components."""
+    skipped), W → ``Wnext``; with ``omega`` > 0 the accelerated iterate too,
+    over ``prev`` (:func:`_mix_row`). Returns max |ΔW| over all components."""
     n = s.shape[0]
     change = np.zeros(nthreads)
     for t in nb.prange(nthreads):
@@ -643,6 +619,8 @@ def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, l
             else:
                 d = _midpoint_update(i, s, W, Wnext, B[i, 0], B[i, 1], B[i, 2], scale, stilde,
                                      carry, carry_out)
+            if omega > 0.0:
+                _mix_row(i, prev, Wnext, omega)
             m = max(m, d)
         change[t] = m
     return change.max()
@@ -714,55 +692,43 @@ def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, 
     B = np.empty_like(s)
     nthreads = threads.count()
     mix = anderson_mix if nthreads > 1 else anderson_mix_serial
-    cheb = chebyshev_mix if nthreads > 1 else chebyshev_mix_serial
     n = s.shape[0]
     dF = np.empty((memory, n, 3))
     dG = np.empty((memory, n, 3))
     fprev = np.empty((n if memory > 0 else 0, 3))
     gprev = np.empty_like(fprev)
     gram = np.zeros((memory, memory))
-    accelerated = accel > 0.0 and memory == 0
-    cur, nxt, prev = W, Wnext, None
-    lab_cur, lab_nxt, lab_prev = 0, 1, 2
+    extra = np.empty((n if accel > 0.0 and memory == 0 else 0, 3))
+    cur, nxt, prev = W, Wnext, extra
+    lab_cur, lab_nxt, lab_prev = 0, 1, 2  # as in midpoint_solve
     omega = 1.0
-    measure_until = 2 if accelerated else max_iter
+    accelerating = extra.shape[0] > 0
+    measure_until = 2 if accelerating else max_iter
     previous = np.inf
     theta = theta0
     measured = -1.0
     delta = first = 0.0
     for it in range(1, max_iter + 1):
+        mixing = accelerating and it >= 2
+        if mixing:
+            omega = chebyshev_weight(it, omega, accel)
         B[:] = 0.0
         for op in operators:
             op.field(cur, B, mean)
         delta = midpoint_update(nthreads, s, cur, nxt, B, scale, stilde, carry, carry_out,
-                                local)
+                                local, prev, omega if mixing else 0.0)
         status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
                                                      first, tol, floor, measure_until)
         if status >= 0:
-            if lab_nxt == 2:
-                Wnext[:] = nxt
-                lab_nxt = 1
-            return it, delta, status, lab_nxt, measured, first
+            return it, delta, status, _result_buffer(nxt, lab_nxt, Wnext), measured, first
         previous = delta
         if memory > 0:
             mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
-        elif accelerated and it == 1:
-            prev = cur.copy()
-            cur, nxt = nxt, cur
-            lab_cur, lab_nxt = lab_nxt, lab_cur
-        elif accelerated and not delta > CHEBYSHEV_GROWTH * first:
-            omega = chebyshev_weight(it, omega, accel)
-            cheb(nthreads, prev, nxt, omega)
-            cur, prev = prev, cur
-            lab_cur, lab_prev = lab_prev, lab_cur
         else:
-            accelerated = False
-            cur, nxt = nxt, cur
-            lab_cur, lab_nxt = lab_nxt, lab_cur
-    if lab_nxt == 2:
-        Wnext[:] = nxt
-        lab_nxt = 1
-    return max_iter, delta, NOT_CONVERGED, lab_nxt, measured, first
+            (cur, nxt, prev, lab_cur, lab_nxt, lab_prev,
+             accelerating) = _next_buffers(it, delta, first, accelerating, cur, nxt, prev,
+                                           lab_cur, lab_nxt, lab_prev)
+    return max_iter, delta, NOT_CONVERGED, _result_buffer(nxt, lab_nxt, Wnext), measured, first
 
 
 @threaded()

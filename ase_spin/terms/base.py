@@ -628,7 +628,6 @@ def compile_with(skeleton, functions, name, parallel=False):
         code.update(f"{key}={py.__module__}.{py.__qualname__}".encode())
         code.update(py.__code__.co_code)
         code.update(repr((py.__code__.co_consts, py.__code__.co_names)).encode())
-
     glob = dict(skeleton.__globals__, **functions)
     fn = types.FunctionType(skeleton.__code__, glob, f"{skeleton.__name__}_{name}")
     fn.__qualname__ = f"{skeleton.__name__}_{name}_{code.hexdigest()[:12]}"
