@@ -204,6 +204,11 @@ class CollectivePRK(SpinLatticeDynamics):
         st.ops_next = None
         st.modes = {}
         st.Wnext = np.zeros_like(st.s)
+        # a buffer for the midpoint fields of a solve, when a subclass asks for
+        # them (Langevin), and whether the last solve filled it
+        st.field_out = None
+        st.field_filled = False
+        st.field_scratch = None  # the fused step's, where nobody asks
         magnetic_rows = np.flatnonzero(self.ev.magnetic)
         # contiguous whatever the stride: one compiled specialisation of _best_order
         st.probe = np.ascontiguousarray(magnetic_rows[:: max(1, len(magnetic_rows) // 64)])
@@ -415,7 +420,11 @@ class CollectivePRK(SpinLatticeDynamics):
             # B̄_i = Σ_j c_ij W_j: the whole iteration in one compiled loop
             pairs, c = operators[0].linear_pairs(mean)
             solve = kernels.midpoint_solve_half if pairs.half else kernels.midpoint_solve
-            return solve(threads.count(), pairs.row, pairs.j, c, *args, memory, local, accel)
+            if st.field_out is None:
+                return solve(threads.count(), pairs.row, pairs.j, c, *args, memory, local, accel)
+            st.field_filled = True
+            return solve(threads.count(), pairs.row, pairs.j, c, *args, memory, local, accel,
+                         st.field_out)
         return kernels.midpoint_solve_operators(operators, *args, mean, memory, local, accel)
 
     def _raise_not_converged(self, operators, W, its, delta, scale, mean):

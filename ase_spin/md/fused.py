@@ -44,7 +44,7 @@ _DONE, _GIVE_UP = 0, 1
 def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, scale, tol,
           first_tol, floor, max_iter, theta, lattice, op_q, op_t, reference, half_skin,
           settled_tol, qtol_floor, memory, local, switch, chebyshev, predict, coef, hs,
-          n_history, probe):
+          n_history, probe, field):
     """The skeleton of the fused step (compiled with ``lattice_forces``,
     ``spin_forces``, ``spin_geometry`` and ``spin_couplings`` bound to the
     terms' pieces): CollectivePRK._coupled_step for one spin operator on a
@@ -63,7 +63,8 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     ``hs``, newest first, padded), and the returned order is the one that would
     have predicted the increment W − s best (CollectivePRK._remember_midpoint's,
     from ``n_history`` increments and the rows ``probe``), else −1; ``settle``:
-    how far the second solve moved W, or −1."""
+    how far the second solve moved W, or −1. ``field`` receives the last
+    solve's midpoint fields (kernels.midpoint_solve_half's ``field``)."""
     if predict:
         W = np.empty_like(s)
         extrapolate(coef, hs[0], hs[1], hs[2], hs[3], hs[4], hs[5], hs[6], hs[7],  # noqa: F821
@@ -114,7 +115,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
         its, delta, status, which, measured, moved_w = solve_half(  # noqa: F821
             1, row, nbr, c, s, W, Wnext, stilde, scale, use_tol, floor, max_iter,
             min(1.0, 2.0 * theta), carry_s, carry, memory, local,
-            kernels.chebyshev_bound(theta, chebyshev))
+            kernels.chebyshev_bound(theta, chebyshev), field)
         if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch):
             return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s)
         if 0.0 <= measured < 1.0:  # observed (−1: none was)
@@ -191,6 +192,7 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
     depth = ring.shape[1]
     saved_p = np.empty_like(carry_p)
     increments = np.empty((nstages,) + s.shape)
+    field = np.empty_like(s)  # the midpoint fields (not used here)
     new_theta = theta.copy()
     new_settle = settle.copy()
     new_orders = orders.copy()
@@ -216,7 +218,7 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
                 hs[0], Wnext, scales[stage], tol, first_tol, floor, max_iter[stage],
                 theta[stage], lattice, oq, ot, reference, half_skin, settled_tol, qtol_floor,
                 memory[stage], local[stage], switch[stage], chebyshev[stage], count > 0,
-                coefficients[min(orders[stage], count - 1)], hs, count, probe)
+                coefficients[min(orders[stage], count - 1)], hs, count, probe, field)
             if status != _DONE:
                 failed = stage
                 break
@@ -523,6 +525,11 @@ def collective_step(dyn, h, stage):
     scale = dyn._scale(h)
     collective = _collective or _import_collective()
     memory, local, max_iter, switch, chebyshev = _solver_settings(dyn, stage, h)
+    field = st.field_out  # the midpoint fields, if asked for (else into scratch)
+    if field is None:
+        if st.field_scratch is None or st.field_scratch.shape != st.s.shape:
+            st.field_scratch = np.empty_like(st.s)
+        field = st.field_scratch
     history = st.history[stage]
     predict = bool(history) and _predicts(type(dyn))
     if predict:  # CollectivePRK._predict, inside the step
@@ -544,9 +551,10 @@ def collective_step(dyn, h, stage):
                                        data_q, data_t, ev.neighbors.reference, 0.5 * ev.skin,
                                        dyn._settled_tol(), dyn._settled_qtol(0.0), memory,
                                        local, switch, chebyshev, predict, coef, hs, n_history,
-                                       st.probe)
+                                       st.probe, field)
     if status != _DONE:
         return None
+    st.field_filled = st.field_out is not None
     st.theta[stage] = theta
     st.Wnext = Wnext
     st.FL, st.EL, st.EL_terms, st.VL = FL, None, None, None

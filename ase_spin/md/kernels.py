@@ -394,7 +394,7 @@ def _result_buffer(nxt, label, Wnext):
 
 @threaded(anderson_mix=lambda: anderson_mix_serial)
 def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
-                   theta0, carry, carry_out, memory=MEMORY, local=True, accel=0.0):
+                   theta0, carry, carry_out, memory=MEMORY, local=True, accel=0.0, field=None):
     r"""Solve the spherical-midpoint equation for fixed pair couplings J̄_ij:
 
     .. math::
@@ -431,7 +431,9 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     stopped falling below ``floor`` (round-off reached). Returns (iterations,
     last max|ΔW|, status, index of the buffer holding the result: 0 = W,
     1 = Wnext, contraction θ observed, or −1 if none was, max|ΔW| of the
-    first sweep: how far the starting guess was from the result).
+    first sweep: how far the starting guess was from the result). ``field``,
+    if given, receives the midpoint fields B̄_i of the last sweep's input
+    iterate (magnetic rows; the others are not written).
     """
     n = len(row) - 1
     bounds = balanced_chunks(row, nthreads)
@@ -473,6 +475,10 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
                     bx += Jk * cur[j, 0]
                     by += Jk * cur[j, 1]
                     bz += Jk * cur[j, 2]
+                if field is not None:
+                    field[i, 0] = bx
+                    field[i, 1] = by
+                    field[i, 2] = bz
                 if local:
                     d = _local_midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
                                                carry_out)
@@ -502,7 +508,7 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
 @threaded(anderson_mix=lambda: anderson_mix_serial)
 def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor,
                         max_iter, theta0, carry, carry_out, memory=MEMORY, local=True,
-                        accel=0.0):
+                        accel=0.0, field=None):
     """:func:`midpoint_solve` over a half pair list (each pair once, half the
     memory traffic): each sweep scatters J̄_ij W_j into row i and J̄_ij W_i into
     row j of per-thread buffers, then updates every spin from their sum."""
@@ -571,6 +577,10 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
                     buf[u, i, 2] = 0.0
                 if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
                     continue
+                if field is not None:
+                    field[i, 0] = bx
+                    field[i, 1] = by
+                    field[i, 2] = bz
                 if local:
                     d = _local_midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
                                                carry_out)
@@ -627,41 +637,51 @@ def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, l
 
 
 @threaded(reduce_threads=lambda: reduce_threads_serial)
-def linear_field_and_form(nthreads, row, nbr, c, half, u, d, out):
+def linear_field_and_form(nthreads, row, nbr, c, half, u, d, x, out):
     """One pass over the pairs of a term in the ``linear_pairs`` form (B = C x,
     B_i = Σ_j c_k x_j over k = (i → j), C symmetric): out += C u, and returns
-    the quadratic form d·C d = Σ_i Σ_j c_k d_i·d_j (a half list holds each pair
-    once: scattered into row j too, counted twice in the form; per-thread
-    buffers and sums added in thread order)."""
+    the forms (d·C d, x·C d) = Σ_i Σ_j c_k (d_i·d_j, x_i·d_j). A half list
+    holds each pair once: scattered into row j too, each pair's terms taken
+    both ways; per-thread buffers and sums added in thread order."""
     n = len(row) - 1
     bounds = balanced_chunks(row, nthreads)
     buf = np.zeros((nthreads, n if half else 0, 3))
-    form = np.zeros(nthreads)
+    form = np.zeros((nthreads, 2))
     twice = 2.0 if half else 1.0
     for t in nb.prange(nthreads):
         acc = 0.0
+        cross = 0.0
         for i in range(bounds[t], bounds[t + 1]):
             ux = u[i, 0]
             uy = u[i, 1]
             uz = u[i, 2]
-            dx = d[i, 0]
-            dy = d[i, 1]
-            dz = d[i, 2]
+            # row sums Σ_j c_k (u_j, d_j, x_j): the forms from them, per row
             fx = fy = fz = 0.0
-            e = 0.0
+            ax = ay = az = 0.0
+            bx = by = bz = 0.0
             for k in range(row[i], row[i + 1]):
                 j = nbr[k]
                 ck = c[k]
                 fx += ck * u[j, 0]
                 fy += ck * u[j, 1]
                 fz += ck * u[j, 2]
-                e += ck * (dx * d[j, 0] + dy * d[j, 1] + dz * d[j, 2])
+                ax += ck * d[j, 0]
+                ay += ck * d[j, 1]
+                az += ck * d[j, 2]
                 if half:
+                    bx += ck * x[j, 0]
+                    by += ck * x[j, 1]
+                    bz += ck * x[j, 2]
                     buf[t, j, 0] += ck * ux
                     buf[t, j, 1] += ck * uy
                     buf[t, j, 2] += ck * uz
-            acc += twice * e
+            dx = d[i, 0]
+            dy = d[i, 1]
+            dz = d[i, 2]
+            acc += twice * (dx * ax + dy * ay + dz * az)
+            cross += x[i, 0] * ax + x[i, 1] * ay + x[i, 2] * az
             if half:
+                cross += dx * bx + dy * by + dz * bz
                 buf[t, i, 0] += fx
                 buf[t, i, 1] += fy
                 buf[t, i, 2] += fz
@@ -669,13 +689,16 @@ def linear_field_and_form(nthreads, row, nbr, c, half, u, d, out):
                 out[i, 0] += fx
                 out[i, 1] += fy
                 out[i, 2] += fz
-        form[t] = acc
+        form[t, 0] = acc
+        form[t, 1] = cross
     if half:
         reduce_threads(buf, out)
     total = 0.0
+    mixed = 0.0
     for t in range(nthreads):
-        total += form[t]
-    return total
+        total += form[t, 0]
+        mixed += form[t, 1]
+    return total, mixed
 
 
 def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, max_iter,

@@ -51,6 +51,12 @@ class _SpinFields(NamedTuple):
 #: (CollectivePRK's 1e-15) costs ~3 more sweeps per step for no difference
 #: that the run can show (E_tot − E_bath and the sampling: docs/thermostats.md).
 NOISY_TOL = 1e-10
+#: The remainder predictor with a noisy spin bath, row m (newest first): the
+#: last remainder plus the mean of the last m increments (see Langevin._predict).
+_MEAN_SLOPE = np.array([[1.0, 0.0, 0.0, 0.0],
+                        [2.0, -1.0, 0.0, 0.0],
+                        [1.5, 0.0, -0.5, 0.0],
+                        [4.0 / 3.0, 0.0, 0.0, -1.0 / 3.0]])
 #: Outer-iteration settling tolerance with a bath on (see Langevin._settled_tol).
 _SETTLED = 1e-12
 #: and of q̃ (Å), see Langevin._settled_qtol
@@ -220,8 +226,16 @@ def bath_block(s, before, B, k1, sigma, key, k2, magnetic, origin):
 
 
 @threaded()
-def damp_from(start, B, k, magnetic, out):
-    """out = D_B(k) start per magnetic spin (:func:`_damped`, a = k|B_i|)."""
+def damp_from(start, B, k, magnetic, out, y0=None, origin=None, c=None, kick=None, jump=None,
+              keep=None):
+    """out = D_B(k) start per magnetic spin (:func:`_damped`, a = k|B_i|).
+
+    With ``kick`` (the corrector of a bath, out = y; rows without spin 0),
+    also what the predictor and the bath energy need, per row: jump = y −
+    ``origin`` (the bath's whole move) and kick = (y − y0) + c_i y × B (the
+    move since the fields B were taken at y0, plus the explicit half step of
+    precession in them: C·kick is the field change the midpoint sees, for a
+    term B = C s); and B copied to ``keep``."""
     n = start.shape[0]
     for blk in nb.prange((n + BLOCK - 1) // BLOCK):
         lo = blk * BLOCK
@@ -252,43 +266,35 @@ def damp_from(start, B, k, magnetic, out):
             out[i, 0] = x
             out[i, 1] = y
             out[i, 2] = z
+        if kick is not None:
+            af, gf, cc = _rows(y0, lo, m), _rows(origin, lo, m), c[lo:lo + m]
+            kf, jf, ef = _rows(kick, lo, m), _rows(jump, lo, m), _rows(keep, lo, m)
+            for j in range(m):
+                x, y, z = of[3 * j], of[3 * j + 1], of[3 * j + 2]
+                bx, by, bz = Bf[3 * j], Bf[3 * j + 1], Bf[3 * j + 2]
+                kf[3 * j] = (x - af[3 * j]) + cc[j] * (y * bz - z * by)
+                kf[3 * j + 1] = (y - af[3 * j + 1]) + cc[j] * (z * bx - x * bz)
+                kf[3 * j + 2] = (z - af[3 * j + 2]) + cc[j] * (x * by - y * bx)
+                jf[3 * j] = x - gf[3 * j]
+                jf[3 * j + 1] = y - gf[3 * j + 1]
+                jf[3 * j + 2] = z - gf[3 * j + 2]
+                ef[3 * j] = bx
+                ef[3 * j + 1] = by
+                ef[3 * j + 2] = bz
 
 
 @threaded()
-def bath_jumps(y, y0, origin, B, c, kick, jump, B_origin):
-    """What the predictor and the bath energy need from a bath (per row, rows
-    without spin 0): jump = y − origin (the bath's whole move) and kick =
-    (y − y0) + c_i y × B (the move since the fields B were taken at y0, plus
-    the explicit half step of precession in them: C·kick is the field change
-    the midpoint sees, for a term B = C s). Returns Σ_i jump_i·B_origin,i
-    (summed per block of rows, the blocks in order: the same for any thread
-    count)."""
-    n = y.shape[0]
-    nblocks = (n + BLOCK - 1) // BLOCK
-    part = np.zeros(nblocks)
-    for blk in nb.prange(nblocks):
+def extrapolated_field(Bbar, B0, out):
+    """out = 2 B̄ − B₀ (rows of (n, 3) arrays): the field at the end of a
+    midpoint step from its midpoint field B̄ and the field B₀ at its start,
+    to O(h²) (see Langevin._closing_bath)."""
+    n = out.shape[0]
+    for blk in nb.prange((n + BLOCK - 1) // BLOCK):
         lo = blk * BLOCK
         m = min(n, lo + BLOCK) - lo
-        yf, af, of, Bf = _rows(y, lo, m), _rows(y0, lo, m), _rows(origin, lo, m), _rows(B, lo, m)
-        kf, jf, cc = _rows(kick, lo, m), _rows(jump, lo, m), c[lo:lo + m]
-        bo = _rows(B_origin, lo, m)
-        dot = 0.0
+        bf, zf, of = _rows(Bbar, lo, m), _rows(B0, lo, m), _rows(out, lo, m)
         for j in range(3 * m):
-            dot += (yf[j] - of[j]) * bo[j]
-        part[blk] = dot
-        for j in range(m):
-            x, yy, z = yf[3 * j], yf[3 * j + 1], yf[3 * j + 2]
-            bx, by, bz = Bf[3 * j], Bf[3 * j + 1], Bf[3 * j + 2]
-            kf[3 * j] = (x - af[3 * j]) + cc[j] * (yy * bz - z * by)
-            kf[3 * j + 1] = (yy - af[3 * j + 1]) + cc[j] * (z * bx - x * bz)
-            kf[3 * j + 2] = (z - af[3 * j + 2]) + cc[j] * (x * by - yy * bx)
-            jf[3 * j] = x - of[3 * j]
-            jf[3 * j + 1] = yy - of[3 * j + 1]
-            jf[3 * j + 2] = z - of[3 * j + 2]
-    total = 0.0
-    for blk in range(nblocks):
-        total += part[blk]
-    return total
+            of[j] = 2.0 * bf[j] - zf[j]
 
 
 def noise_amplitude(d_tau):
@@ -504,8 +510,10 @@ class Langevin(CollectivePRK):
     second order). Sampling is weak second order (measured, docs/benchmarks.md).
     Between two steps with no output in between, the two bath halves are done
     as one, O_L(h) and D(h/2) N(h) D*(h/2): equal in law to O(h³), three
-    passes over the spin terms per step. Every spin update is a rotation or a
-    normalised move: |s_i| stays 1 to round-off.
+    passes over the spin terms per step, two with exchange alone at order 2
+    (the field at the step's end from its midpoint fields:
+    :meth:`_closing_bath`). Every spin update is a rotation or a normalised
+    move: |s_i| stays 1 to round-off.
 
     Parameters
     ----------
@@ -607,11 +615,17 @@ class Langevin(CollectivePRK):
         st.bath_coefficients = {}
         st.s_before = np.zeros((n, 3))
         # the spins at the bath's start, the bath's move and the predictor's kick
-        # (see bath_jumps); the spins' next buffer
+        # (see damp_from); the spins' next buffer
         st.s_origin, st.jump, st.kick = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
         st.s_spare = np.zeros((n, 3))
         st.p_spare = None
         st.no_damping = np.zeros(n)
+        # B(y₀) of the last opening bath (linear terms), kept for the field at
+        # the step's end (see _closing_bath); the end field's buffer
+        st.B_y0 = None
+        st.B_y0_fresh = False
+        st.B_end = None
+        st.field_buffer = None
 
     def _coefficients(self):
         """κ_i h, σ_i of N(h) and of N(h/2), c_i of the predictor's half step
@@ -658,11 +672,31 @@ class Langevin(CollectivePRK):
         st.s_start = st.s
         st.B_start = st.B_next if stage == 0 else None
         st.B_next = None
-        result = super()._substep(h, stage, want_energy)
+        # the solve's midpoint fields give the field at the step's end when
+        # the closing bath is put off (see _closing_bath)
+        field = None
+        if self._defer and self._end_field_from_midpoint():
+            if st.field_buffer is None or st.field_buffer.shape != st.s.shape:
+                st.field_buffer = np.zeros_like(st.s)  # rows without spin stay 0
+            field = st.field_buffer
+        st.field_out = field
+        st.field_filled = False
+        try:
+            result = super()._substep(h, stage, want_energy)
+        finally:
+            st.field_out = None
         st.EB = None
         if stage == len(self.gammas) - 1:
-            self._closing_bath()
+            self._closing_bath(field if st.field_filled else None)
         return result
+
+    def _end_field_from_midpoint(self):
+        """Can the field at the end of this step be had from its midpoint fields
+        (see _closing_bath)? One stage (order 2), one spin term, of the form
+        B = C s, and B(y₀) of this step's opening bath known (a spin bath on)."""
+        st = self._state
+        return (st.B_y0_fresh and len(self.gammas) == 1 and len(st.ops) == 1
+                and hasattr(st.ops[0], "linear_pairs"))
 
     def _settled_tol(self):
         """With a bath on, the step is not reversible and moves each spin by
@@ -703,19 +737,22 @@ class Langevin(CollectivePRK):
         predictor's field take one pass after the move, not a pass at y: for
         the terms B = C s (``linear_pairs``; C symmetric, fixed positions)
 
-        .. math:: E(y) - E(x) = -\delta\cdot\mathbf B(x)
+        .. math:: E(y) - E(x) = -x\cdot C\delta
                   - \tfrac12\,\delta\cdot C\delta, \qquad \delta = y - x,
 
         exactly, and the field the midpoint predictor takes is
-        B(y₀) + C k, k = (y − y₀) + c y × B(y₀) (:func:`bath_jumps`): B(y)
+        B(y₀) + C k, k = (y − y₀) + c y × B(y₀) (:func:`damp_from`): B(y)
         plus the first-order change over the explicit half step, the
         neighbours' motion that the random moves make unpredictable from the
-        last steps (3 midpoint sweeps instead of 4). C k and δ·Cδ come from one
-        pass over the pairs (:func:`~ase_spin.md.kernels.linear_field_and_form`);
-        other terms give their energy at y from ``add``."""
+        last steps (3 midpoint sweeps instead of 4). C k and both forms come
+        from one pass over the pairs
+        (:func:`~ase_spin.md.kernels.linear_field_and_form`); other terms give
+        their energy at y from ``add``. The energy takes no field at x: that
+        field need only steer the damping (see :meth:`_closing_bath`)."""
         st = self._state
         pending = st.pending
         st.pending = False
+        st.B_y0_fresh = False
         self._lattice_bath(self.dt if pending is not False else 0.5 * self.dt)
         if not self._spin_bath_on():
             return
@@ -735,36 +772,64 @@ class Langevin(CollectivePRK):
         # y₀ = D_{B0}(h/2) c is in st.s; the fields at y₀ give the corrector
         B1 = self._spin_energy_fields(energy=False).B
         y0, y = st.s, st.s_spare
-        damp_from(st.s_before, B1, 0.5 * kappa_h, mag, y)
         st.s, st.s_spare = y, y0
         st.carry_s[:] = 0.0  # the spins were replaced: no rounding error to carry
         if start.B_linear is None:  # no term of the form B = C s
+            damp_from(st.s_before, B1, 0.5 * kappa_h, mag, y)
             end = self._spin_energy_fields()
             self.bath_energy_spin += end.energy - start.energy
             st.B_next = end.B
             return
-        jump_field = bath_jumps(y, y0, st.s_origin, B1, c, st.kick, st.jump, start.B_linear)
+        # B(y₀) kept for the field at this step's end (_closing_bath)
+        if st.B_y0 is None or st.B_y0.shape != B1.shape:
+            st.B_y0 = np.empty_like(B1)
+        damp_from(st.s_before, B1, 0.5 * kappa_h, mag, y, y0, st.s_origin, c, st.kick,
+                  st.jump, st.B_y0)
+        st.B_y0_fresh = len(st.ops) == 1
         B = B1  # B(y₀) + C k, below
-        form = 0.0
+        form = cross = 0.0
         others = 0.0
         for op in st.ops:
             if hasattr(op, "linear_pairs"):
                 pairs, coupling = op.linear_pairs()
-                form += kernels.linear_field_and_form(threads.count(), pairs.row, pairs.j,
-                                                      coupling, pairs.half, st.kick, st.jump, B)
+                f, g = kernels.linear_field_and_form(threads.count(), pairs.row, pairs.j,
+                                                     coupling, pairs.half, st.kick, st.jump,
+                                                     st.s_origin, B)
+                form += f
+                cross += g
             else:
                 others += op.add(y, _E, _NO_FORCES, _NO_FORCES, _NO_ENERGIES)[0]
-        self.bath_energy_spin += -jump_field - 0.5 * form + (others - start.E_other)
+        self.bath_energy_spin += -cross - 0.5 * form + (others - start.E_other)
         st.B_next = B
 
-    def _closing_bath(self):
+    def _closing_bath(self, midpoint_field=None):
         r"""The bath after the collective step: O_L(h/2), D(h/2) about the fields
         at its start, N(h/2) — or nothing yet if the next step's opening half
-        takes over (see :meth:`_step`)."""
+        takes over (see :meth:`_step`).
+
+        Put off, the bath's first move D(h/2) needs the field at the step's
+        end x = s̃ only to steer the damping (the energy is taken from forms,
+        :meth:`_opening_bath`). With ``midpoint_field`` B̄ (the solve's
+        midpoint fields, B̄ = ½[C(q) + C(q̃)] W; one term B = C s, order 2) it
+        is
+
+        .. math:: \hat{\mathbf B}(x) = 2\bar{\mathbf B} - \mathbf B(y_0)
+                  = C(\tilde q)\,\tilde s + O(h^2)
+
+        (W = (s + s̃)/|s + s̃| = (s + s̃)/2 + O(h²), and
+        ½[C(q) − C(q̃)](s̃ − s) = O(h²); B(y₀) = C(q) s up to the corrector's
+        move): the damping about it errs by O(λh³) per step, within the
+        scheme's own local error, and saves a pass over the pairs."""
         st = self._state
         on = self._spin_bath_on()
-        # put off: the next opening half takes the exchange energy from δ·B and
-        # δ·Cδ (see _opening_bath), not from E here
+        if self._defer and on and midpoint_field is not None and st.B_y0_fresh:
+            if st.B_end is None or st.B_end.shape != st.s.shape:
+                st.B_end = np.empty_like(st.s)
+            extrapolated_field(midpoint_field, st.B_y0, st.B_end)
+            st.pending = st.EB = _SpinFields(np.nan, 0.0, st.B_end, st.B_end)
+            return
+        # put off: the next opening half takes the exchange energy from the
+        # forms (see _opening_bath), not from E here
         EB = self._spin_energy_fields(linear_energy=not self._defer) if on else None
         if self._defer:
             st.pending = EB
@@ -791,13 +856,28 @@ class Langevin(CollectivePRK):
         with c = (h/2)σ r/(ħ(1+λ²)) and B(y₀) + C k, see :meth:`_opening_bath`),
         R extrapolated from the last steps' remainders W − W₀. The baths move
         the spins between steps by random amounts, which extrapolating W itself
-        (as CollectivePRK does) would carry into the prediction."""
+        (as CollectivePRK does) would carry into the prediction.
+
+        With noise, R moves like a random walk with a drift (each step's random
+        moves shift it): R is predicted as the last remainder plus the mean of
+        the last m ≤ 3 increments, R₀ + (R₀ − R_m)/m. A polynomial of order 0
+        (the last R, the best guess for the random part) lags behind the
+        drift, and a midpoint solve stopped at ``tol`` keeps part of that
+        systematic miss: E_tot − E_bath then drifts (docs/thermostats.md);
+        the mean slope has no lag, for √(1 + 1/m) times the random miss.
+        Without noise (a smooth R), the polynomial order that predicted the
+        last remainder best (as CollectivePRK's predictor)."""
         st = self._state
         history = st.increments
         if stage != 0 or not history or st.B_start is None:
             return super()._predict(stage)
-        coef = kernels._EXTRAPOLATION[min(st.increment_order, len(history) - 1)]
-        R = kernels._last_four(history)
+        if self.spin_temp > 0.0:
+            order = min(3, len(history) - 1)
+            coef = _MEAN_SLOPE[order]
+        else:
+            order = min(st.increment_order, len(history) - 1)
+            coef = kernels._EXTRAPOLATION[order]
+        R = kernels._last(history, order)[:4]  # beyond the order: the newest again
         W = np.empty_like(st.s)
         if st.known is None or st.known.shape != W.shape:
             st.known = np.empty_like(W)
@@ -828,7 +908,7 @@ class Langevin(CollectivePRK):
         else:
             midpoint_remainder(W, st.s_start, st.B_start, self._coefficients()[3], R)
         st.known_for = None
-        if history:
+        if history and not self.spin_temp > 0.0:  # (a noisy bath: see _predict)
             st.increment_order = kernels.best_extrapolation_order(history, R, st.probe)
         if len(history) == history.maxlen:  # the one that drops out: the next R's buffer
             st.remainder_spare = history.popleft()
