@@ -663,6 +663,16 @@ def test_bath_kernels_equal_the_spin_by_spin_formulas(nthreads_kernel):
     np.testing.assert_allclose(np.linalg.norm(got[magnetic], axis=1), 1.0, atol=4e-16)
 
 
+def energy_at(atoms, spins):
+    """The calculator's potential energy of ``atoms`` with its spins set to the
+    unit vectors ``spins`` (moments' lengths kept), the Atoms left as they are."""
+    mu = np.linalg.norm(atoms.get_initial_magnetic_moments(), axis=1)
+    probe = atoms.copy()
+    probe.calc = atoms.calc
+    probe.set_initial_magnetic_moments(mu[:, None] * spins)
+    return probe.get_potential_energy()
+
+
 @pytest.mark.parametrize("pending", [False, True])
 def test_bath_energy_is_the_energy_change_of_the_bath(pending):
     """The spin bath's energy (exchange from −x·Cδ − ½ δ·Cδ in one pass
@@ -675,14 +685,6 @@ def test_bath_energy_is_the_energy_change_of_the_bath(pending):
     dyn = Langevin(atoms, 0.5 * units.fs, 1500.0, spin_damping=0.4, friction=0.0, rng=5)
     dyn.run(3)
     st = dyn._state
-    mu = np.linalg.norm(atoms.get_initial_magnetic_moments(), axis=1)
-
-    def energy(spins):
-        probe = atoms.copy()
-        probe.calc = atoms.calc
-        probe.set_initial_magnetic_moments(mu[:, None] * spins)
-        return probe.get_potential_energy()
-
     if pending:
         st.pending = dyn._spin_energy_fields()
     x = st.s.copy()
@@ -691,7 +693,7 @@ def test_bath_energy_is_the_energy_change_of_the_bath(pending):
     y = st.s.copy()
     assert np.abs(y - x).max() > 1e-3  # the bath did move the spins
     change = dyn.bath_energy_spin - before
-    exact = energy(y) - energy(x)
+    exact = energy_at(atoms, y) - energy_at(atoms, x)
     assert abs(change) > 1e-3
     assert abs(change - exact) < 1e-12 * len(atoms), (change, exact)
 
@@ -716,20 +718,12 @@ def test_field_at_a_steps_end_from_its_midpoint_fields(monkeypatch):
         st.ops[0].field(st.s, exact)
         errors.append(np.abs(st.B_end - exact).max() / np.abs(exact).max())
     assert 0.0 < errors[0] < 8e-3 and errors[0] / errors[1] > 2.4, errors
-    mu = np.linalg.norm(atoms.get_initial_magnetic_moments(), axis=1)
-
-    def energy(spins):
-        probe = atoms.copy()
-        probe.calc = atoms.calc
-        probe.set_initial_magnetic_moments(mu[:, None] * spins)
-        return probe.get_potential_energy()
-
     x = st.s.copy()
     before = dyn.bath_energy_spin
     dyn._opening_bath()
     change = dyn.bath_energy_spin - before
     assert abs(change) > 1e-3
-    assert abs(change - (energy(st.s) - energy(x))) < 1e-12 * len(atoms)
+    assert abs(change - (energy_at(atoms, st.s) - energy_at(atoms, x))) < 1e-12 * len(atoms)
 
 
 @pytest.mark.filterwarnings("ignore::ase_spin.md.base.TimestepWarning")
