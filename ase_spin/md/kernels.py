@@ -867,13 +867,6 @@ _COEFFICIENTS = _coefficients(PREDICTOR_DEPTH)
 _EXTRAPOLATION = np.ascontiguousarray(_COEFFICIENTS[:4, :4])
 
 
-def _last_four(history):
-    """The last four midpoints, newest first (the newest repeated where history
-    is shorter: those entries get coefficient 0)."""
-    h0 = history[-1]
-    return tuple(history[-1 - k] if len(history) > k else h0 for k in range(4))
-
-
 def _last(history, order=PREDICTOR_DEPTH):
     """The last :data:`PREDICTOR_DEPTH` entries, newest first, padded with
     the newest (coefficient 0 there): one tuple type, one compiled kernel.
