@@ -204,11 +204,11 @@ class CollectivePRK(SpinLatticeDynamics):
         st.ops_next = None
         st.modes = {}
         st.Wnext = np.zeros_like(st.s)
-        # a buffer for the midpoint fields of a solve, when a subclass asks for
-        # them (Langevin), and whether the last solve filled it
+        # where a solve puts its midpoint fields when a subclass asks for them
+        # (Langevin), and whether the last solve did
         st.field_out = None
         st.field_filled = False
-        st.field_scratch = None  # the fused step's, where nobody asks
+        st.field_buffer = None  # see _midpoint_field_buffer
         magnetic_rows = np.flatnonzero(self.ev.magnetic)
         # contiguous whatever the stride: one compiled specialisation of _best_order
         st.probe = np.ascontiguousarray(magnetic_rows[:: max(1, len(magnetic_rows) // 64)])
@@ -397,6 +397,14 @@ class CollectivePRK(SpinLatticeDynamics):
         if status == kernels.NOT_CONVERGED:
             self._raise_not_converged(operators, W, its, delta, scale, mean)
         return W, stilde, its, moved, carry
+
+    def _midpoint_field_buffer(self):
+        """An (n, 3) buffer for a solve's midpoint fields (made once, zero: the
+        rows without spin, which no solve writes, stay 0)."""
+        st = self._state
+        if st.field_buffer is None or st.field_buffer.shape != st.s.shape:
+            st.field_buffer = np.zeros_like(st.s)
+        return st.field_buffer
 
     def _scale(self, h):
         """c_i = hσ r_i/ħ of a stage of size h (one array per step size, kept)."""

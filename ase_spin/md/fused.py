@@ -525,11 +525,9 @@ def collective_step(dyn, h, stage):
     scale = dyn._scale(h)
     collective = _collective or _import_collective()
     memory, local, max_iter, switch, chebyshev = _solver_settings(dyn, stage, h)
-    field = st.field_out  # the midpoint fields, if asked for (else into scratch)
-    if field is None:
-        if st.field_scratch is None or st.field_scratch.shape != st.s.shape:
-            st.field_scratch = np.empty_like(st.s)
-        field = st.field_scratch
+    # the midpoint fields, where asked for (else into the same buffer, unread:
+    # one compiled specialisation of the step)
+    field = st.field_out if st.field_out is not None else dyn._midpoint_field_buffer()
     history = st.history[stage]
     predict = bool(history) and _predicts(type(dyn))
     if predict:  # CollectivePRK._predict, inside the step

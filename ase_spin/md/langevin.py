@@ -620,12 +620,12 @@ class Langevin(CollectivePRK):
         st.s_spare = np.zeros((n, 3))
         st.p_spare = None
         st.no_damping = np.zeros(n)
-        # B(y₀) of the last opening bath (linear terms), kept for the field at
-        # the step's end (see _closing_bath); the end field's buffer
+        # B(y₀) of the last opening bath, kept for the field at the step's end
+        # (see _closing_bath), and whether it is this step's with exchange the
+        # only spin term; the end field's buffer
         st.B_y0 = None
         st.B_y0_fresh = False
         st.B_end = None
-        st.field_buffer = None
 
     def _coefficients(self):
         """κ_i h, σ_i of N(h) and of N(h/2), c_i of the predictor's half step
@@ -673,12 +673,11 @@ class Langevin(CollectivePRK):
         st.B_start = st.B_next if stage == 0 else None
         st.B_next = None
         # the solve's midpoint fields give the field at the step's end when
-        # the closing bath is put off (see _closing_bath)
+        # the closing bath is put off, exchange is the only spin term and the
+        # step has one stage (see _closing_bath)
         field = None
-        if self._defer and self._end_field_from_midpoint():
-            if st.field_buffer is None or st.field_buffer.shape != st.s.shape:
-                st.field_buffer = np.zeros_like(st.s)  # rows without spin stay 0
-            field = st.field_buffer
+        if self._defer and st.B_y0_fresh and len(self.gammas) == 1:
+            field = self._midpoint_field_buffer()
         st.field_out = field
         st.field_filled = False
         try:
@@ -689,14 +688,6 @@ class Langevin(CollectivePRK):
         if stage == len(self.gammas) - 1:
             self._closing_bath(field if st.field_filled else None)
         return result
-
-    def _end_field_from_midpoint(self):
-        """Can the field at the end of this step be had from its midpoint fields
-        (see _closing_bath)? One stage (order 2), one spin term, of the form
-        B = C s, and B(y₀) of this step's opening bath known (a spin bath on)."""
-        st = self._state
-        return (st.B_y0_fresh and len(self.gammas) == 1 and len(st.ops) == 1
-                and hasattr(st.ops[0], "linear_pairs"))
 
     def _settled_tol(self):
         """With a bath on, the step is not reversible and moves each spin by
@@ -822,7 +813,7 @@ class Langevin(CollectivePRK):
         scheme's own local error, and saves a pass over the pairs."""
         st = self._state
         on = self._spin_bath_on()
-        if self._defer and on and midpoint_field is not None and st.B_y0_fresh:
+        if midpoint_field is not None:  # (put off: see _substep)
             if st.B_end is None or st.B_end.shape != st.s.shape:
                 st.B_end = np.empty_like(st.s)
             extrapolated_field(midpoint_field, st.B_y0, st.B_end)
