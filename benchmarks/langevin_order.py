@@ -46,12 +46,10 @@ def main(argv=None):
     plain = lambda d: np.sqrt(2.0 * d)  # noqa: E731
     damp_from = langevin.damp_from
 
-    def no_corrector(start, B, k, magnetic, out, y0=None, origin=None, c=None, kick=None,
-                     jump=None, keep=None):
+    def no_corrector(start, B, k, magnetic, out, y0=None, c=None, kick=None, keep=None):
         # keep the predicted spins y0: damping about the bath's first fields only
         np.copyto(out, y0)
         kick[:] = c[:, None] * np.cross(y0, B)
-        jump[:] = y0 - origin
         keep[:] = B
 
     rows = []

@@ -609,8 +609,10 @@ def test_noisy_default_tolerance_changes_nothing_a_run_can_show():
 def test_bath_kernels_equal_the_spin_by_spin_formulas(nthreads_kernel):
     """bath_block and damp_from (a branch-free SIMD loop plus a one-by-one loop
     for large damping angles, zero fields and non-magnetic rows) give the same
-    bits as the per-spin flows _damped and _diffused applied one spin at a time;
-    damp_from with the bath's jumps the same spins, and the jumps."""
+    bits as the per-spin flows _damped and _diffused applied one spin at a time,
+    bath_block leaving its input as it was; with w = 1 it damps about
+    2B − B0, to the bit; damp_from with the predictor's kick the same spins,
+    the kick, and B kept."""
     from ase_spin.md import langevin as lg
     from ase_spin.md.gaussian import normal
     rng = np.random.default_rng(3)
@@ -634,18 +636,28 @@ def test_bath_kernels_equal_the_spin_by_spin_formulas(nthreads_kernel):
     key = np.uint64(12345)
     bath = getattr(lg.bath_block, nthreads_kernel)
     damp = getattr(lg.damp_from, nthreads_kernel)
-    got, before, origin = s.copy(), np.full_like(s, 7.0), np.full_like(s, 7.0)
-    bath(got, before, B, k1, sigma, key, k2, magnetic, origin)
-    np.testing.assert_array_equal(origin, s)
+    start = s.copy()
+    got, before = np.full_like(s, 7.0), np.full_like(s, 7.0)
+    bath(start, got, before, B, B, 0.0, k1, sigma, key, k2, magnetic)
+    np.testing.assert_array_equal(start, s)
+    # w = 1: the field 2B − B0 formed row by row, the same bits as stored
+    Bbar, B0 = rng.normal(size=(2, n, 3))
+    Bbar[7], B0[7] = 1.0, 2.0  # a zero field F there still
+    got1, before1 = np.full_like(s, 7.0), np.full_like(s, 7.0)
+    bath(start, got1, before1, Bbar, B0, 1.0, k1, sigma, key, k2, magnetic)
+    F = 2.0 * Bbar - B0
+    got2, before2 = np.full_like(s, 7.0), np.full_like(s, 7.0)
+    bath(start, got2, before2, F, F, 0.0, k1, sigma, key, k2, magnetic)
+    np.testing.assert_array_equal(got1, got2)
+    np.testing.assert_array_equal(before1, before2)
     damped = np.full_like(s, 7.0)
     damp(s, B, k1, magnetic, damped)
-    # with the bath's jumps: the same damped spins, and kick, jump, B kept
-    y0, origin2, c = rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), rng.uniform(0.0, 0.1, n)
-    damped2, kick, jump, keep = (np.full_like(s, 7.0) for _ in range(4))
-    damp(s, B, k1, magnetic, damped2, y0, origin2, c, kick, jump, keep)
+    # with the predictor's kick: the same damped spins, and the kick, B kept
+    y0, c = rng.normal(size=(n, 3)), rng.uniform(0.0, 0.1, n)
+    damped2, kick, keep = (np.full_like(s, 7.0) for _ in range(3))
+    damp(s, B, k1, magnetic, damped2, y0, c, kick, keep)
     np.testing.assert_array_equal(damped2, damped)
     np.testing.assert_array_equal(keep, B)
-    np.testing.assert_array_equal(jump, damped - origin2)
     np.testing.assert_allclose(kick, (damped - y0) + c[:, None] * np.cross(damped, B),
                                rtol=0, atol=1e-15)
     want, want_before, want_damped = s.copy(), np.full_like(s, 7.0), np.full_like(s, 7.0)
@@ -660,6 +672,7 @@ def test_bath_kernels_equal_the_spin_by_spin_formulas(nthreads_kernel):
     np.testing.assert_array_equal(before, want_before)
     np.testing.assert_array_equal(damped, want_damped)
     assert np.all(got[13] == 0.0) and np.all(before[13] == 7.0)
+    assert np.abs(got1 - got).max() > 1e-3  # (another field: other spins)
     np.testing.assert_allclose(np.linalg.norm(got[magnetic], axis=1), 1.0, atol=4e-16)
 
 
@@ -713,10 +726,11 @@ def test_field_at_a_steps_end_from_its_midpoint_fields(monkeypatch):
         st = dyn._state
         dyn.max_steps = dyn.nsteps + 5  # as inside run(): the closing bath is put off
         dyn._step(count=True)
-        assert st.pending is not False and st.pending.B is st.B_end
+        assert st.pending is not False and st.pending_B0 is st.B_y0
+        end = 2.0 * st.pending.B - st.pending_B0  # as bath_block forms it (w = 1)
         exact = np.zeros_like(st.s)
         st.ops[0].field(st.s, exact)
-        errors.append(np.abs(st.B_end - exact).max() / np.abs(exact).max())
+        errors.append(np.abs(end - exact).max() / np.abs(exact).max())
     assert 0.0 < errors[0] < 8e-3 and errors[0] / errors[1] > 2.4, errors
     x = st.s.copy()
     before = dyn.bath_energy_spin
@@ -798,10 +812,11 @@ def test_linear_field_and_form_on_half_and_full_lists(half):
     pairs, c = op.linear_pairs()
     assert pairs.half == half
     rng = np.random.default_rng(1)
-    u, d, x = rng.normal(size=(3, len(atoms), 3))
+    u, y, x = rng.normal(size=(3, len(atoms), 3))
+    d = y - x
     out = np.ones((len(atoms), 3))
     form, cross = kernels.linear_field_and_form(threads.count(), pairs.row, pairs.j, c,
-                                                pairs.half, u, d, x, out)
+                                                pairs.half, u, y, x, out)
     Cu, Cd = np.zeros_like(u), np.zeros_like(d)
     op.field(u, Cu)
     op.field(d, Cd)

@@ -163,21 +163,38 @@ def _rows(a, lo, m):
     return a.reshape(-1)[3 * lo:3 * (lo + m)]
 
 
+@nb.njit(cache=True, inline="always")
+def _field_direction(B, B0, w, i):
+    """:func:`_direction` of the field F = (1 + w) B − w B0 at row i."""
+    a = 1.0 + w
+    bx = a * B[i, 0] - w * B0[i, 0]
+    by = a * B[i, 1] - w * B0[i, 1]
+    bz = a * B[i, 2] - w * B0[i, 2]
+    b = np.sqrt(bx * bx + by * by + bz * bz)
+    if b == 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    inv = 1.0 / b
+    return bx * inv, by * inv, bz * inv, b
+
+
 @threaded()
-def bath_block(s, before, B, k1, sigma, key, k2, magnetic, origin):
-    """The spin bath between two collective steps, in place, per magnetic spin:
-    s ← D_B(k2) N(σ, ξ) D_B(k1) s (:func:`_damped` with a = k|B_i|,
+def bath_block(s, out, before, B, B0, w, k1, sigma, key, k2, magnetic):
+    """The spin bath between two collective steps, per magnetic spin:
+    out ← D_F(k2) N(σ, ξ) D_F(k1) s (:func:`_damped` with a = k|F_i|,
     :func:`_diffused`; k = κ_i t per spin, 0: no damping; σ_i = 0: no noise;
     ξ_i = Gaussian numbers 2i, 2i + 1 of stream ``key``), the state before the
-    last D written to ``before``, the spins as they were to ``origin``."""
+    last D written to ``before``; other rows: out = s. s is left as it was
+    (the bath's start, for its energy). The field F = (1 + w) B − w B0: B
+    itself for w = 0 (to the bit: pass B0 = B), the field at a midpoint
+    step's end 2B̄ − B(y₀) for w = 1 (see Langevin._closing_bath), formed
+    row by row here rather than stored."""
     n = s.shape[0]
+    a = 1.0 + w
     for blk in nb.prange((n + BLOCK - 1) // BLOCK):
         lo = blk * BLOCK
         m = min(n, lo + BLOCK) - lo
         sf, bf, Bf = _rows(s, lo, m), _rows(before, lo, m), _rows(B, lo, m)
-        of = _rows(origin, lo, m)
-        for j in range(3 * m):
-            of[j] = sf[j]
+        of, Zf = _rows(out, lo, m), _rows(B0, lo, m)
         kk1, kk2, sig, mag = k1[lo:lo + m], k2[lo:lo + m], sigma[lo:lo + m], magnetic[lo:lo + m]
         xi = np.zeros(2 * m)
         noisy = False
@@ -185,9 +202,15 @@ def bath_block(s, before, B, k1, sigma, key, k2, magnetic, origin):
             noisy |= sig[j] != 0.0
         if noisy:  # (σ = 0 rows do not use theirs)
             normals(key, 2 * lo, xi)
+        # out starts as s, updated in place: with s read and out written in one
+        # loop LLVM leaves it scalar (2.2x slower, measured)
+        for j in range(3 * m):
+            of[j] = sf[j]
         rest = 0
         for j in range(m):
-            bx, by, bz = Bf[3 * j], Bf[3 * j + 1], Bf[3 * j + 2]
+            bx = a * Bf[3 * j] - w * Zf[3 * j]
+            by = a * Bf[3 * j + 1] - w * Zf[3 * j + 1]
+            bz = a * Bf[3 * j + 2] - w * Zf[3 * j + 2]
             b = np.sqrt(bx * bx + by * by + bz * bz)
             inv = 1.0 / b
             bx *= inv
@@ -197,21 +220,21 @@ def bath_block(s, before, B, k1, sigma, key, k2, magnetic, origin):
             a2 = kk2[j] * b
             fast = mag[j] & (b > 0.0) & (a1 < _SMALL_ANGLE) & (a2 < _SMALL_ANGLE)
             rest += mag[j] & (not fast)
-            sx, sy, sz = sf[3 * j], sf[3 * j + 1], sf[3 * j + 2]
+            sx, sy, sz = of[3 * j], of[3 * j + 1], of[3 * j + 2]
             x, y, z = _damped_series(sx, sy, sz, bx, by, bz, a1)
             x, y, z = _diffused(x, y, z, sig[j], xi[2 * j], xi[2 * j + 1])
             bf[3 * j] = x if fast else bf[3 * j]
             bf[3 * j + 1] = y if fast else bf[3 * j + 1]
             bf[3 * j + 2] = z if fast else bf[3 * j + 2]
             x, y, z = _damped_series(x, y, z, bx, by, bz, a2)
-            sf[3 * j] = x if fast else sx
-            sf[3 * j + 1] = y if fast else sy
-            sf[3 * j + 2] = z if fast else sz
+            of[3 * j] = x if fast else sx
+            of[3 * j + 1] = y if fast else sy
+            of[3 * j + 2] = z if fast else sz
         for j in range(m if rest else 0):
             i = lo + j
             if not magnetic[i]:
                 continue
-            bx, by, bz, b = _direction(B, i)
+            bx, by, bz, b = _field_direction(B, B0, w, i)
             if b > 0.0 and k1[i] * b < _SMALL_ANGLE and k2[i] * b < _SMALL_ANGLE:
                 continue  # done above
             x, y, z = _damped(s[i, 0], s[i, 1], s[i, 2], bx, by, bz, k1[i] * b)
@@ -220,19 +243,17 @@ def bath_block(s, before, B, k1, sigma, key, k2, magnetic, origin):
             before[i, 1] = y
             before[i, 2] = z
             x, y, z = _damped(x, y, z, bx, by, bz, k2[i] * b)
-            s[i, 0] = x
-            s[i, 1] = y
-            s[i, 2] = z
+            out[i, 0] = x
+            out[i, 1] = y
+            out[i, 2] = z
 
 
 @threaded()
-def damp_from(start, B, k, magnetic, out, y0=None, origin=None, c=None, kick=None, jump=None,
-              keep=None):
+def damp_from(start, B, k, magnetic, out, y0=None, c=None, kick=None, keep=None):
     """out = D_B(k) start per magnetic spin (:func:`_damped`, a = k|B_i|).
 
     With ``kick`` (the corrector of a bath, out = y; rows without spin 0),
-    also what the predictor and the bath energy need, per row: jump = y −
-    ``origin`` (the bath's whole move) and kick = (y − y0) + c_i y × B (the
+    also what the predictor needs, per row: kick = (y − y0) + c_i y × B (the
     move since the fields B were taken at y0, plus the explicit half step of
     precession in them: C·kick is the field change the midpoint sees, for a
     term B = C s); and B copied to ``keep``."""
@@ -267,34 +288,17 @@ def damp_from(start, B, k, magnetic, out, y0=None, origin=None, c=None, kick=Non
             out[i, 1] = y
             out[i, 2] = z
         if kick is not None:
-            af, gf, cc = _rows(y0, lo, m), _rows(origin, lo, m), c[lo:lo + m]
-            kf, jf, ef = _rows(kick, lo, m), _rows(jump, lo, m), _rows(keep, lo, m)
+            af, cc = _rows(y0, lo, m), c[lo:lo + m]
+            kf, ef = _rows(kick, lo, m), _rows(keep, lo, m)
             for j in range(m):
                 x, y, z = of[3 * j], of[3 * j + 1], of[3 * j + 2]
                 bx, by, bz = Bf[3 * j], Bf[3 * j + 1], Bf[3 * j + 2]
                 kf[3 * j] = (x - af[3 * j]) + cc[j] * (y * bz - z * by)
                 kf[3 * j + 1] = (y - af[3 * j + 1]) + cc[j] * (z * bx - x * bz)
                 kf[3 * j + 2] = (z - af[3 * j + 2]) + cc[j] * (x * by - y * bx)
-                jf[3 * j] = x - gf[3 * j]
-                jf[3 * j + 1] = y - gf[3 * j + 1]
-                jf[3 * j + 2] = z - gf[3 * j + 2]
                 ef[3 * j] = bx
                 ef[3 * j + 1] = by
                 ef[3 * j + 2] = bz
-
-
-@threaded()
-def extrapolated_field(Bbar, B0, out):
-    """out = 2 B̄ − B₀ (rows of (n, 3) arrays): the field at the end of a
-    midpoint step from its midpoint field B̄ and the field B₀ at its start,
-    to O(h²) (see Langevin._closing_bath)."""
-    n = out.shape[0]
-    for blk in nb.prange((n + BLOCK - 1) // BLOCK):
-        lo = blk * BLOCK
-        m = min(n, lo + BLOCK) - lo
-        bf, zf, of = _rows(Bbar, lo, m), _rows(B0, lo, m), _rows(out, lo, m)
-        for j in range(3 * m):
-            of[j] = 2.0 * bf[j] - zf[j]
 
 
 def noise_amplitude(d_tau):
@@ -614,18 +618,19 @@ class Langevin(CollectivePRK):
         st.known = st.known_for = None
         st.bath_coefficients = {}
         st.s_before = np.zeros((n, 3))
-        # the spins at the bath's start, the bath's move and the predictor's kick
-        # (see damp_from); the spins' next buffer
-        st.s_origin, st.jump, st.kick = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
-        st.s_spare = np.zeros((n, 3))
+        # the predictor's kick (see damp_from); the spins' next two buffers (a
+        # bath keeps its start x for the energy, and writes y₀ and y apart)
+        st.kick = np.zeros((n, 3))
+        st.s_spare, st.s_spare2 = np.zeros((n, 3)), np.zeros((n, 3))
         st.p_spare = None
         st.no_damping = np.zeros(n)
         # B(y₀) of the last opening bath, kept for the field at the step's end
         # (see _closing_bath), and whether it is this step's with exchange the
-        # only spin term; the end field's buffer
+        # only spin term; with a pending bath whose field is 2B̄ − B(y₀): that
+        # B(y₀), else None
         st.B_y0 = None
         st.B_y0_fresh = False
-        st.B_end = None
+        st.pending_B0 = None
 
     def _coefficients(self):
         """κ_i h, σ_i of N(h) and of N(h/2), c_i of the predictor's half step
@@ -741,8 +746,8 @@ class Langevin(CollectivePRK):
         their energy at y from ``add``. The energy takes no field at x: that
         field need only steer the damping (see :meth:`_closing_bath`)."""
         st = self._state
-        pending = st.pending
-        st.pending = False
+        pending, B0 = st.pending, st.pending_B0
+        st.pending, st.pending_B0 = False, None
         st.B_y0_fresh = False
         self._lattice_bath(self.dt if pending is not False else 0.5 * self.dt)
         if not self._spin_bath_on():
@@ -759,11 +764,15 @@ class Langevin(CollectivePRK):
         if not noisy:
             sigma = st.no_damping
         mag = self.ev.magnetic
-        bath_block(st.s, st.s_before, start.B, k1, sigma, key, 0.5 * kappa_h, mag, st.s_origin)
-        # y₀ = D_{B0}(h/2) c is in st.s; the fields at y₀ give the corrector
+        x, y0, y = st.s, st.s_spare, st.s_spare2
+        w = 0.0 if B0 is None else 1.0  # the field at the start, or 2B̄ − B(y₀)
+        bath_block(x, y0, st.s_before, start.B, start.B if B0 is None else B0, w, k1, sigma,
+                   key, 0.5 * kappa_h, mag)
+        # y₀ = D_{B0}(h/2) c; the fields at y₀ give the corrector
+        st.s = y0
         B1 = self._spin_energy_fields(energy=False).B
-        y0, y = st.s, st.s_spare
-        st.s, st.s_spare = y, y0
+        # x stays as it was until the forms below are taken
+        st.s, st.s_spare, st.s_spare2 = y, x, y0
         st.carry_s[:] = 0.0  # the spins were replaced: no rounding error to carry
         if start.B_linear is None:  # no term of the form B = C s
             damp_from(st.s_before, B1, 0.5 * kappa_h, mag, y)
@@ -774,8 +783,7 @@ class Langevin(CollectivePRK):
         # B(y₀) kept for the field at this step's end (_closing_bath)
         if st.B_y0 is None or st.B_y0.shape != B1.shape:
             st.B_y0 = np.empty_like(B1)
-        damp_from(st.s_before, B1, 0.5 * kappa_h, mag, y, y0, st.s_origin, c, st.kick,
-                  st.jump, st.B_y0)
+        damp_from(st.s_before, B1, 0.5 * kappa_h, mag, y, y0, c, st.kick, st.B_y0)
         st.B_y0_fresh = len(st.ops) == 1
         B = B1  # B(y₀) + C k, below
         form = cross = 0.0
@@ -784,8 +792,7 @@ class Langevin(CollectivePRK):
             if hasattr(op, "linear_pairs"):
                 pairs, coupling = op.linear_pairs()
                 f, g = kernels.linear_field_and_form(threads.count(), pairs.row, pairs.j,
-                                                     coupling, pairs.half, st.kick, st.jump,
-                                                     st.s_origin, B)
+                                                     coupling, pairs.half, st.kick, y, x, B)
                 form += f
                 cross += g
             else:
@@ -814,10 +821,9 @@ class Langevin(CollectivePRK):
         st = self._state
         on = self._spin_bath_on()
         if midpoint_field is not None:  # (put off: see _substep)
-            if st.B_end is None or st.B_end.shape != st.s.shape:
-                st.B_end = np.empty_like(st.s)
-            extrapolated_field(midpoint_field, st.B_y0, st.B_end)
-            st.pending = st.EB = _SpinFields(np.nan, 0.0, st.B_end, st.B_end)
+            # B̂ is formed row by row in the next bath (bath_block's w = 1)
+            st.pending = st.EB = _SpinFields(np.nan, 0.0, midpoint_field, midpoint_field)
+            st.pending_B0 = st.B_y0
             return
         # put off: the next opening half takes the exchange energy from the
         # forms (see _opening_bath), not from E here
@@ -835,8 +841,9 @@ class Langevin(CollectivePRK):
             key = new_key(self.rng)
         else:
             sigma = st.no_damping
-        bath_block(st.s, st.s_before, EB.B, 0.5 * kappa_h, sigma, key, st.no_damping,
-                   self.ev.magnetic, st.s_origin)
+        bath_block(st.s, st.s_spare, st.s_before, EB.B, EB.B, 0.0, 0.5 * kappa_h, sigma, key,
+                   st.no_damping, self.ev.magnetic)
+        st.s, st.s_spare = st.s_spare, st.s
         st.carry_s[:] = 0.0
         st.EB = self._spin_energy_fields()
         self.bath_energy_spin += st.EB.energy - EB.energy
@@ -869,6 +876,9 @@ class Langevin(CollectivePRK):
             order = min(st.increment_order, len(history) - 1)
             coef = kernels._EXTRAPOLATION[order]
         R = kernels._last(history, order)[:4]  # beyond the order: the newest again
+        # the mean slope uses R₀ and R_m only: the newest in the slots of zero
+        # weight (its rows are in cache: two (n, 3) arrays fewer to read)
+        R = tuple(r if w != 0.0 else R[0] for r, w in zip(R, coef))
         W = np.empty_like(st.s)
         if st.known is None or st.known.shape != W.shape:
             st.known = np.empty_like(W)
