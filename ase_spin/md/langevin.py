@@ -202,8 +202,8 @@ def bath_block(s, out, before, B, B0, w, k1, sigma, key, k2, magnetic):
             noisy |= sig[j] != 0.0
         if noisy:  # (σ = 0 rows do not use theirs)
             normals(key, 2 * lo, xi)
-        # out starts as s, updated in place: with s read and out written in one
-        # loop LLVM leaves it scalar (2.2x slower, measured)
+        # out starts as s and is updated in place: with s read and out written
+        # in the loop below, LLVM leaves it scalar (docs/benchmarks.md, thermostat)
         for j in range(3 * m):
             of[j] = sf[j]
         rest = 0
