@@ -823,3 +823,69 @@ def test_linear_field_and_form_on_half_and_full_lists(half):
     np.testing.assert_allclose(out, 1.0 + Cu, rtol=0, atol=1e-14)
     assert abs(form - np.einsum("ij,ij->", d, Cd)) < 1e-12 * abs(form)
     assert abs(cross - np.einsum("ij,ij->", x, Cd)) < 1e-12 * np.abs(x).sum() * np.abs(Cd).max()
+
+
+def _early_run(monkeypatch, early, friction, steps, fail_at=None):
+    """A Langevin run on the general path (fcc Co, 32 atoms, exchange alone),
+    with the next bath's first part done at each step's end forces (``early``,
+    the default) or left to the next step; ``fail_at``: the n-th opening bath
+    raises. Returns the Atoms' arrays, the bath energies, the rng state, and
+    how many steps did the early work."""
+    from conftest import general_path_only
+    from ase_spin.terms import exchange
+
+    calls = [0]
+    with monkeypatch.context() as m:
+        general_path_only(m)
+        if not early:
+            m.setattr(Langevin, "_end_forces", ase_spin.CollectivePRK._end_forces)
+        forces_and_field = exchange.ExchangeOperator.forces_and_field
+
+        def spy(self, *args):
+            calls[0] += 1
+            return forces_and_field(self, *args)
+
+        m.setattr(exchange.ExchangeOperator, "forces_and_field", spy)
+        opening = Langevin._opening_bath
+        openings = [0]
+
+        def fail(self):
+            openings[0] += 1
+            if openings[0] == fail_at:
+                raise RuntimeError("a step that fails")
+            return opening(self)
+
+        m.setattr(Langevin, "_opening_bath", fail)
+        atoms = fcc_cobalt(2, temperature_K=300)
+        dyn = Langevin(atoms, 0.2 * units.fs, 300.0, spin_damping=0.2,
+                       friction=friction / units.fs, rng=11)
+        try:
+            dyn.run(steps)
+        except RuntimeError:
+            assert fail_at is not None
+        out = [atoms.positions.copy(), atoms.get_momenta(), ase_spin.get_spins(atoms),
+               np.array([dyn.bath_energy_lattice, dyn.bath_energy_spin])]
+        return out, dyn.rng.bit_generator.state, calls[0]
+
+
+@pytest.mark.parametrize("friction", [0.0, 0.01])
+def test_bath_begun_with_the_end_forces_changes_no_bit(monkeypatch, friction):
+    """With the closing bath put off and exchange alone, the next bath's
+    y₀ = D N D s̃ and B(y₀) are made with the step's end forces, in their pass
+    over the pairs (Langevin._end_forces, ExchangeOperator.forces_and_field):
+    the run is the same to the bit as with that work left to the next step
+    (the keys drawn in the same order, lattice then spins); and a step that
+    fails after it puts the rng back to before those keys, as without it."""
+    got, state, calls = _early_run(monkeypatch, True, friction, 12)
+    want, want_state, none = _early_run(monkeypatch, False, friction, 12)
+    assert calls == 11 and none == 0  # every step but the last (not put off)
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
+    assert state == want_state
+    # the 7th step fails in its opening bath, after the 6th drew its keys
+    got, state, calls = _early_run(monkeypatch, True, friction, 12, fail_at=7)
+    want, want_state, _ = _early_run(monkeypatch, False, friction, 12, fail_at=7)
+    assert calls == 6
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
+    assert state == want_state

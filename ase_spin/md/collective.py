@@ -294,7 +294,7 @@ class CollectivePRK(SpinLatticeDynamics):
                 f"positions q̃ and midpoint spins did not settle in {_MAX_OUTER} "
                 f"outer iterations at step {self.nsteps}; reduce the timestep")
         self._lattice_at(qt, want_energy)
-        F = self._spin_forces(st.ops_next, W, st.FL)
+        F = self._end_forces(st.ops_next, W, s_new)
         kernels.kick(P, 0.5 * h, self._md_forces(F, qt), st.carry_mid, P, st.carry_p)
         st.carry_q, st.carry_s = carry_q, carry_s
         if settle is not None:
@@ -303,6 +303,12 @@ class CollectivePRK(SpinLatticeDynamics):
         st.q, st.p, st.s = qt, self._adjust_momenta(P, qt), s_new
         st.ops, st.ops_next = st.ops_next, st.ops
         return iterations, geometries
+
+    def _end_forces(self, operators, W, s_new):
+        """The forces at (q̃, W) for a step's last half kick (s_new: the spins
+        at its end): where a subclass can do work that shares their pass over
+        the pairs (Langevin)."""
+        return self._spin_forces(operators, W, self._state.FL)
 
     def _blocks_possible(self):
         return len(self.atoms) < threads.SERIAL_BELOW and fused._blocks(type(self))

@@ -631,6 +631,10 @@ class Langevin(CollectivePRK):
         st.B_y0 = None
         st.B_y0_fresh = False
         st.pending_B0 = None
+        # the next opening bath's first part, done with the last step's end
+        # forces (see _end_forces): (lattice key or None, y₀, B(y₀), the rng's
+        # state before their keys), or None
+        st.early = None
 
     def _coefficients(self):
         """κ_i h, σ_i of N(h) and of N(h/2), c_i of the predictor's half step
@@ -657,8 +661,11 @@ class Langevin(CollectivePRK):
         self._defer = (count and self.nsteps + 1 < getattr(self, "max_steps", 0)
                        and not self._observer_due(self.nsteps + 1)
                        and not self.atoms.constraints)
+        # keys this step takes may have been drawn with the last one's end
+        # forces (_end_forces): the state before them is the one to go back to
+        early = getattr(self._state, "early", None)
         saved = (self.bath_energy_lattice, self.bath_energy_spin,
-                 self.rng.bit_generator.state)
+                 self.rng.bit_generator.state if early is None else early[3])
         try:
             super()._step(count, synced)
         except BaseException:
@@ -693,6 +700,37 @@ class Langevin(CollectivePRK):
         if stage == len(self.gammas) - 1:
             self._closing_bath(field if st.field_filled else None)
         return result
+
+    def _end_forces(self, operators, W, s_new):
+        r"""The step's end forces; when the bath after it is put off with the
+        end field from the midpoint (:meth:`_closing_bath`: ``field_out``
+        filled, exchange alone), also the first part of that bath, which needs
+        nothing the rest of the step computes: y₀ = D(h/2) N(h) D(h/2) s̃
+        (:func:`bath_block`) and the fields B(y₀) at q̃, the positions the bath
+        acts at, in the same pass over the pairs as the forces at (q̃, W)
+        (:meth:`~ase_spin.terms.exchange.ExchangeOperator.forces_and_field`):
+        one pass fewer. The keys are drawn as :meth:`_opening_bath` would
+        (lattice, then spins): the same numbers, the same bits."""
+        st = self._state
+        op = operators[0] if len(operators) == 1 else None
+        if (st.field_out is None or not st.field_filled or not self._spin_bath_on()
+                or not hasattr(op, "forces_and_field")):
+            return super()._end_forces(operators, W, s_new)
+        rng_state = self.rng.bit_generator.state
+        lattice_key = new_key(self.rng) if self._lattice_bath_on() else None
+        kappa_h, sig_h, _, _ = self._coefficients()
+        if self.spin_temp > 0.0:
+            key, sigma = new_key(self.rng), sig_h
+        else:
+            key, sigma = np.uint64(0), st.no_damping
+        y0 = st.s_spare
+        bath_block(s_new, y0, st.s_before, st.field_out, st.B_y0, 1.0, 0.5 * kappa_h, sigma,
+                   key, 0.5 * kappa_h, self.ev.magnetic)
+        F = st.FL.copy()
+        B1 = np.zeros_like(s_new)
+        op.forces_and_field(W, F, y0, B1)
+        st.early = (lattice_key, y0, B1, rng_state)
+        return F
 
     def _settled_tol(self):
         """With a bath on, the step is not reversible and moves each spin by
@@ -748,8 +786,10 @@ class Langevin(CollectivePRK):
         st = self._state
         pending, B0 = st.pending, st.pending_B0
         st.pending, st.pending_B0 = False, None
+        early, st.early = getattr(st, "early", None), None
         st.B_y0_fresh = False
-        self._lattice_bath(self.dt if pending is not False else 0.5 * self.dt)
+        self._lattice_bath(self.dt if pending is not False else 0.5 * self.dt,
+                           None if early is None else early[0])
         if not self._spin_bath_on():
             return
         kappa_h, sig_h, sig_half, c = self._coefficients()
@@ -760,17 +800,20 @@ class Langevin(CollectivePRK):
         else:
             start = st.EB if st.EB is not None else self._spin_energy_fields()
             k1, sigma = st.no_damping, sig_half
-        key = new_key(self.rng) if noisy else np.uint64(0)
-        if not noisy:
-            sigma = st.no_damping
         mag = self.ev.magnetic
         x, y0, y = st.s, st.s_spare, st.s_spare2
-        w = 0.0 if B0 is None else 1.0  # the field at the start, or 2B̄ − B(y₀)
-        bath_block(x, y0, st.s_before, start.B, start.B if B0 is None else B0, w, k1, sigma,
-                   key, 0.5 * kappa_h, mag)
-        # y₀ = D_{B0}(h/2) c; the fields at y₀ give the corrector
-        st.s = y0
-        B1 = self._spin_energy_fields(energy=False).B
+        if early is not None:  # y₀ and B(y₀) are here already (_end_forces)
+            B1 = early[2]
+        else:
+            key = new_key(self.rng) if noisy else np.uint64(0)
+            if not noisy:
+                sigma = st.no_damping
+            w = 0.0 if B0 is None else 1.0  # the field at the start, or 2B̄ − B(y₀)
+            bath_block(x, y0, st.s_before, start.B, start.B if B0 is None else B0, w, k1,
+                       sigma, key, 0.5 * kappa_h, mag)
+            # y₀ = D_{B0}(h/2) c; the fields at y₀ give the corrector
+            st.s = y0
+            B1 = self._spin_energy_fields(energy=False).B
         # x stays as it was until the forms below are taken
         st.s, st.s_spare, st.s_spare2 = y, x, y0
         st.carry_s[:] = 0.0  # the spins were replaced: no rounding error to carry
@@ -946,11 +989,15 @@ class Langevin(CollectivePRK):
             E_other += op.add(s, want, B, _NO_FORCES, _NO_ENERGIES)[0]
         return _SpinFields(float(E_linear), float(E_other), B, linear)
 
-    def _lattice_bath(self, tau):
+    def _lattice_bath_on(self):
+        return self.fr != 0.0 and not self.frozen
+
+    def _lattice_bath(self, tau, key=None):
         """O_L(τ): the exact Ornstein–Uhlenbeck step of the momenta; adds the
-        kinetic-energy change to ``bath_energy_lattice``."""
+        kinetic-energy change to ``bath_energy_lattice``. ``key``: its random
+        numbers' key if drawn already (:meth:`_end_forces`)."""
         st = self._state
-        if self.fr == 0.0 or self.frozen:
+        if not self._lattice_bath_on():
             return
         c1 = np.exp(-self.fr * tau)
         c2 = np.sqrt(-np.expm1(-2.0 * self.fr * tau) * self.temp)
@@ -959,7 +1006,8 @@ class Langevin(CollectivePRK):
         if p is None or p is st.p:
             p = np.empty_like(st.p)
         m = self.masses[:, 0]
-        dK = ornstein_uhlenbeck(st.p, new_key(self.rng), m, c1, c2, self.fix_com, p)
+        dK = ornstein_uhlenbeck(st.p, new_key(self.rng) if key is None else key, m, c1, c2,
+                                self.fix_com, p)
         if self.atoms.constraints:
             K0 = 0.5 * float(np.einsum("ij,ij->", st.p, st.p / self.masses))
             p = self._adjust_momenta(p, st.q)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
 
 import numba as nb
 import numpy as np
@@ -238,7 +239,7 @@ class ExchangeOperator(SpinOperator):
         else:
             kernel = _spin_pass_half_formed if pairs.half else _spin_pass_formed
         out = kernel(threads.count(), pairs.row, pairs.j, pairs.image, pairs.images, self.J,
-                     self.g, self.G, pos, W, self.offset, magnetic_forces, forces,
+                     self.g, self.G, pos, W, W, self.offset, magnetic_forces, forces,
                      energies, want.magnetic_forces, want.forces, want.energy, want.energies,
                      in_pass)
         virial = np.array(out[1:])
@@ -249,11 +250,27 @@ class ExchangeOperator(SpinOperator):
         return out[0], virial
 
 
+    def forces_and_field(self, W, forces, u, field):
+        """forces += the exchange forces at spins W, field += B(u) = Σ_j J_ij u_j
+        for other spins u, in one pass over the pairs: the same bits as
+        :meth:`add` (forces alone) and :meth:`field` called apart (a
+        thermostat's field after its noise, with the step's last forces)."""
+        pairs = self.pairs
+        if not (pairs.half and self.stored):
+            self.add(W, _FORCES_WANT, _NO_D, forces, _NO_EX)
+            self.field(u, field)
+            return
+        _spin_pass_half_forces_field(threads.count(), pairs.row, pairs.j, pairs.image,
+                                     pairs.images, self.J, self.g, self.G, _NO_D, W, u,
+                                     self.offset, field, forces, _NO_EX, True, True, False,
+                                     False, False)
+
+
 def _field(pairs, J, W, out):
     """out_i += Σ_j J_k W_j over a pair list (full: gather; half: scatter)."""
     kernel = _spin_pass_half_field if pairs.half else _spin_pass_kernel
     kernel(threads.count(), pairs.row, pairs.j, pairs.image, pairs.images, J, _NO_EX, _NO_D,
-           _NO_D, W, 0.0, out, _NO_D, _NO_EX, True, False, False, False, False)
+           _NO_D, W, W, 0.0, out, _NO_D, _NO_EX, True, False, False, False, False)
 
 
 @nb.njit(cache=True, inline="always")
@@ -466,6 +483,9 @@ class Exchange(SpinTerm):
 
 _NO_D = np.zeros((0, 3))
 _NO_EX = np.zeros(0)
+#: :meth:`ExchangeOperator.add`'s request of forces alone (as a Want)
+_FORCES_WANT = SimpleNamespace(magnetic_forces=False, forces=True, energy=False,
+                               energies=False, virial=False)
 
 
 def _copy_positions(positions, buffer):
@@ -584,17 +604,20 @@ def _formed_twin(fn):
 #: The requests with twins of their own (see _WANT).
 _FORCES_ONLY = (False, True, False, False, False)
 _FIELD_ONLY = (True, False, False, False, False)
+_FORCES_AND_FIELD = (True, True, False, False, False)
 
 
-def _spin_pass(nthreads, row, nbr, image, images, J, g, G, pos, s, c, B, F, energies,
+def _spin_pass(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B, F, energies,
                want_b, want_f, want_energy, want_energies, want_virial):
     """One pass over the exchange pairs for spins s (full list, gather into i),
     w = s_i·s_j − c, G_ij = J'(r_ij) d_ij/r_ij read from ``G`` (or, in the
     :func:`_formed_twin`, formed as g_ij d_ij), d_ij = (r_j − r_i) + S_ij
     recomputed from the positions ``pos`` the operator was prepared at:
 
-    B_i += Σ_j J_ij s_j,   F_i += −Σ_j w G_ij,
-    e_i += −½ Σ_j J_ij w,   W += −½ Σ_ij w G_ij ⊗ d_ij.
+    B_i += Σ_j J_ij u_j,   F_i += −Σ_j w G_ij,
+    e_i += −½ Σ_j J_ij w,   W += −½ Σ_ij w G_ij ⊗ d_ij,
+
+    the field B for spins ``u`` (s itself but in :meth:`ExchangeOperator.forces_and_field`).
 
     (G_ij = g·d is the product the geometry pass stores in G, scaled by w after:
     the same bits either way.) The G kernel reads no positions and gives no
@@ -635,14 +658,12 @@ def _spin_pass(nthreads, row, nbr, image, images, J, g, G, pos, s, c, B, F, ener
             for k in range(row[i], row[i + 1]):
                 j = nbr[k]
                 Jk = J[k]
-                tx = s[j, 0]
-                ty = s[j, 1]
-                tz = s[j, 2]
-                bx += Jk * tx
-                by += Jk * ty
-                bz += Jk * tz
+                if want_b:
+                    bx += Jk * u[j, 0]
+                    by += Jk * u[j, 1]
+                    bz += Jk * u[j, 2]
                 if need_dot:
-                    w = sx * tx + sy * ty + sz * tz - c
+                    w = sx * s[j, 0] + sy * s[j, 1] + sz * s[j, 2] - c
                     if need_d:
                         # d = (r_j − r_i) + S as separation() forms it, r_i loaded once
                         m = image[k]
@@ -695,12 +716,12 @@ def _spin_pass(nthreads, row, nbr, image, images, J, g, G, pos, s, c, B, F, ener
     return out[0], out[1], out[2], out[3], out[4], out[5], out[6]
 
 
-def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, c, B, F, energies,
+def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B, F, energies,
                     want_b, want_f, want_energy, want_energies, want_virial):
     """:func:`_spin_pass` over a half list (each pair once), scattering into
     per-thread buffers, w = s_i·s_j − c, G read (or formed as g d in the
-    :func:`_formed_twin`), d recomputed from ``pos``: B_i += J s_j,
-    B_j += J s_i, F_i −= w G, F_j += w G, e_i, e_j −= ½ J w, W −= w G ⊗ d."""
+    :func:`_formed_twin`), d recomputed from ``pos``: B_i += J u_j,
+    B_j += J u_i, F_i −= w G, F_j += w G, e_i, e_j −= ½ J w, W −= w G ⊗ d."""
     if _WANT is not None:  # a twin for one request: the flags are constants
         want_b, want_f, want_energy, want_energies, want_virial = _WANT
     n = len(row) - 1
@@ -723,6 +744,9 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, c, B, F,
             sx = s[i, 0]
             sy = s[i, 1]
             sz = s[i, 2]
+            vx = u[i, 0]
+            vy = u[i, 1]
+            vz = u[i, 2]
             if need_d:
                 xi = pos[i, 0]
                 yi = pos[i, 1]
@@ -739,18 +763,15 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, c, B, F,
             for k in range(row[i], row[i + 1]):
                 j = nbr[k]
                 Jk = J[k]
-                ux = s[j, 0]
-                uy = s[j, 1]
-                uz = s[j, 2]
                 if want_b:
-                    bx += Jk * ux
-                    by += Jk * uy
-                    bz += Jk * uz
-                    bbuf[t, j, 0] += Jk * sx
-                    bbuf[t, j, 1] += Jk * sy
-                    bbuf[t, j, 2] += Jk * sz
+                    bx += Jk * u[j, 0]
+                    by += Jk * u[j, 1]
+                    bz += Jk * u[j, 2]
+                    bbuf[t, j, 0] += Jk * vx
+                    bbuf[t, j, 1] += Jk * vy
+                    bbuf[t, j, 2] += Jk * vz
                 if need_dot:
-                    w = sx * ux + sy * uy + sz * uz - c
+                    w = sx * s[j, 0] + sy * s[j, 1] + sz * s[j, 2] - c
                     if want_energy or want_energies:
                         ei -= Jk * w
                     if want_energies:
@@ -870,6 +891,8 @@ _spin_pass_half_forces = threaded(reduce_threads=lambda: reduce_threads_serial)(
     kernel_twin(_spin_pass_half, "_forces", _WANT=_FORCES_ONLY))
 _spin_pass_half_field = threaded(reduce_threads=lambda: reduce_threads_serial)(
     kernel_twin(_spin_pass_half, "_field", _WANT=_FIELD_ONLY))
+_spin_pass_half_forces_field = threaded(reduce_threads=lambda: reduce_threads_serial)(
+    kernel_twin(_spin_pass_half, "_forces_field", _WANT=_FORCES_AND_FIELD))
 
 
 @threaded(always=True, reduce_threads=lambda: reduce_threads_serial)
@@ -982,7 +1005,7 @@ def _exchange_forces(W, data, F):
     only, serial twin, G kept): a piece of the fused step."""
     nthreads, row, nbr, image, images, J, G, Jbar, offset, params = data
     _forces_pass_serial(nthreads, row, nbr, image, images, J, np.zeros(0), G,
-                        np.zeros((0, 3)), W, offset, np.zeros((0, 3)), F, np.zeros(0),
+                        np.zeros((0, 3)), W, W, offset, np.zeros((0, 3)), F, np.zeros(0),
                         False, True, False, False, False)
 
 
