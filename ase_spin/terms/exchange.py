@@ -726,8 +726,12 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
         want_b, want_f, want_energy, want_energies, want_virial = _WANT
     n = len(row) - 1
     bounds = balanced_chunks(row, nthreads)
-    bbuf = np.zeros((nthreads, n if want_b else 0, 3))
-    fbuf = np.zeros((nthreads, n if want_f else 0, 3))
+    # forces and field together (forces_and_field): one buffer, both on one
+    # cache line per atom j (two buffers of the scattered rows miss twice)
+    both = want_b and want_f
+    bbuf = np.zeros((nthreads, n if want_b and not both else 0, 3))
+    fbuf = np.zeros((nthreads, n if want_f and not both else 0, 3))
+    pbuf = np.zeros((nthreads, n if both else 0, 6))
     ebuf = np.zeros((nthreads, n if want_energies else 0, 1))
     acc = np.zeros((nthreads, 7))
     need_dot = want_f or want_energy or want_energies or want_virial
@@ -767,9 +771,14 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
                     bx += Jk * u[j, 0]
                     by += Jk * u[j, 1]
                     bz += Jk * u[j, 2]
-                    bbuf[t, j, 0] += Jk * vx
-                    bbuf[t, j, 1] += Jk * vy
-                    bbuf[t, j, 2] += Jk * vz
+                    if both:
+                        pbuf[t, j, 3] += Jk * vx
+                        pbuf[t, j, 4] += Jk * vy
+                        pbuf[t, j, 5] += Jk * vz
+                    else:
+                        bbuf[t, j, 0] += Jk * vx
+                        bbuf[t, j, 1] += Jk * vy
+                        bbuf[t, j, 2] += Jk * vz
                 if need_dot:
                     w = sx * s[j, 0] + sy * s[j, 1] + sz * s[j, 2] - c
                     if want_energy or want_energies:
@@ -798,9 +807,14 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
                         fx -= gx
                         fy -= gy
                         fz -= gz
-                        fbuf[t, j, 0] += gx
-                        fbuf[t, j, 1] += gy
-                        fbuf[t, j, 2] += gz
+                        if both:
+                            pbuf[t, j, 0] += gx
+                            pbuf[t, j, 1] += gy
+                            pbuf[t, j, 2] += gz
+                        else:
+                            fbuf[t, j, 0] += gx
+                            fbuf[t, j, 1] += gy
+                            fbuf[t, j, 2] += gz
                     if want_virial:
                         vxx -= gx * dx
                         vyy -= gy * dy
@@ -809,13 +823,23 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
                         vxz -= gx * dz
                         vxy -= gx * dy
             if want_b:
-                bbuf[t, i, 0] += bx
-                bbuf[t, i, 1] += by
-                bbuf[t, i, 2] += bz
+                if both:
+                    pbuf[t, i, 3] += bx
+                    pbuf[t, i, 4] += by
+                    pbuf[t, i, 5] += bz
+                else:
+                    bbuf[t, i, 0] += bx
+                    bbuf[t, i, 1] += by
+                    bbuf[t, i, 2] += bz
             if want_f:
-                fbuf[t, i, 0] += fx
-                fbuf[t, i, 1] += fy
-                fbuf[t, i, 2] += fz
+                if both:
+                    pbuf[t, i, 0] += fx
+                    pbuf[t, i, 1] += fy
+                    pbuf[t, i, 2] += fz
+                else:
+                    fbuf[t, i, 0] += fx
+                    fbuf[t, i, 1] += fy
+                    fbuf[t, i, 2] += fz
             if want_energies:
                 ebuf[t, i, 0] += 0.5 * ei
             e += ei
@@ -828,6 +852,26 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
         acc[t, 6] = vxy
     reduce_threads(fbuf, F)
     reduce_threads(bbuf, B)
+    for i in nb.prange(pbuf.shape[1]):  # (as reduce_threads: t in order)
+        fx = F[i, 0]
+        fy = F[i, 1]
+        fz = F[i, 2]
+        bx = B[i, 0]
+        by = B[i, 1]
+        bz = B[i, 2]
+        for t in range(nthreads):
+            fx += pbuf[t, i, 0]
+            fy += pbuf[t, i, 1]
+            fz += pbuf[t, i, 2]
+            bx += pbuf[t, i, 3]
+            by += pbuf[t, i, 4]
+            bz += pbuf[t, i, 5]
+        F[i, 0] = fx
+        F[i, 1] = fy
+        F[i, 2] = fz
+        B[i, 0] = bx
+        B[i, 1] = by
+        B[i, 2] = bz
     reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
     return sum_over_threads(acc)
 
