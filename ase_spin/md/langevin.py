@@ -514,9 +514,10 @@ class Langevin(CollectivePRK):
     second order). Sampling is weak second order (measured, docs/benchmarks.md).
     Between two steps with no output in between, the two bath halves are done
     as one, O_L(h) and D(h/2) N(h) D*(h/2): equal in law to O(h³), three
-    passes over the spin terms per step, two with exchange alone at order 2
+    passes over the spin terms per step; with exchange alone at order 2 one
     (the field at the step's end from its midpoint fields:
-    :meth:`_closing_bath`). Every spin update is a rotation or a normalised
+    :meth:`_closing_bath`; the fields at y⁰ in the pass of the step's end
+    forces: :meth:`_end_forces`). Every spin update is a rotation or a normalised
     move: |s_i| stays 1 to round-off.
 
     Parameters

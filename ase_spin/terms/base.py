@@ -285,6 +285,13 @@ class SpinOperator:
       compiled function ``f(i, s, data) -> (Bx, By, Bz)`` giving spin i's field
       from the spins as they are, and its ``data`` tuple (None: not offered).
 
+    Optional, for a term whose field is linear in the spins, B = C s
+    (exchange): ``linear_pairs(mean)`` — (pairs, c) with B_i = Σ_k c_k s_j,
+    what the compiled midpoint solvers and the thermostat's forms take; and
+    ``forces_and_field(W, forces, u, field)`` — the lattice forces at W and the
+    field C u at other spins u in one pass (the thermostat's fields after its
+    noise, with a step's last forces).
+
     Non-magnetic atoms get zero field.
     """
 
