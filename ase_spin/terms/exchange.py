@@ -732,6 +732,9 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
     bbuf = np.zeros((nthreads, n if want_b and not both else 0, 3))
     fbuf = np.zeros((nthreads, n if want_f and not both else 0, 3))
     pbuf = np.zeros((nthreads, n if both else 0, 6))
+    # where the scattered forces and fields go: columns 0-2 of fb, bo.. of bb
+    fb = pbuf if both else fbuf
+    bb, bo = (pbuf, 3) if both else (bbuf, 0)
     ebuf = np.zeros((nthreads, n if want_energies else 0, 1))
     acc = np.zeros((nthreads, 7))
     need_dot = want_f or want_energy or want_energies or want_virial
@@ -771,14 +774,9 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
                     bx += Jk * u[j, 0]
                     by += Jk * u[j, 1]
                     bz += Jk * u[j, 2]
-                    if both:
-                        pbuf[t, j, 3] += Jk * vx
-                        pbuf[t, j, 4] += Jk * vy
-                        pbuf[t, j, 5] += Jk * vz
-                    else:
-                        bbuf[t, j, 0] += Jk * vx
-                        bbuf[t, j, 1] += Jk * vy
-                        bbuf[t, j, 2] += Jk * vz
+                    bb[t, j, bo] += Jk * vx
+                    bb[t, j, bo + 1] += Jk * vy
+                    bb[t, j, bo + 2] += Jk * vz
                 if need_dot:
                     w = sx * s[j, 0] + sy * s[j, 1] + sz * s[j, 2] - c
                     if want_energy or want_energies:
@@ -807,14 +805,9 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
                         fx -= gx
                         fy -= gy
                         fz -= gz
-                        if both:
-                            pbuf[t, j, 0] += gx
-                            pbuf[t, j, 1] += gy
-                            pbuf[t, j, 2] += gz
-                        else:
-                            fbuf[t, j, 0] += gx
-                            fbuf[t, j, 1] += gy
-                            fbuf[t, j, 2] += gz
+                        fb[t, j, 0] += gx
+                        fb[t, j, 1] += gy
+                        fb[t, j, 2] += gz
                     if want_virial:
                         vxx -= gx * dx
                         vyy -= gy * dy
@@ -823,23 +816,13 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
                         vxz -= gx * dz
                         vxy -= gx * dy
             if want_b:
-                if both:
-                    pbuf[t, i, 3] += bx
-                    pbuf[t, i, 4] += by
-                    pbuf[t, i, 5] += bz
-                else:
-                    bbuf[t, i, 0] += bx
-                    bbuf[t, i, 1] += by
-                    bbuf[t, i, 2] += bz
+                bb[t, i, bo] += bx
+                bb[t, i, bo + 1] += by
+                bb[t, i, bo + 2] += bz
             if want_f:
-                if both:
-                    pbuf[t, i, 0] += fx
-                    pbuf[t, i, 1] += fy
-                    pbuf[t, i, 2] += fz
-                else:
-                    fbuf[t, i, 0] += fx
-                    fbuf[t, i, 1] += fy
-                    fbuf[t, i, 2] += fz
+                fb[t, i, 0] += fx
+                fb[t, i, 1] += fy
+                fb[t, i, 2] += fz
             if want_energies:
                 ebuf[t, i, 0] += 0.5 * ei
             e += ei
