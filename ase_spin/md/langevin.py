@@ -766,7 +766,8 @@ class Langevin(CollectivePRK):
         After a step whose closing half was put off (``pending``), the whole
         bath between the two collective steps: O_L(h) and, in time order,
         D(h/2) N(h) D*(h/2) (D: see :meth:`_closing_bath`), y₀ from the
-        fields at the bath's start.
+        fields at the bath's start — made already, with B(y₀), when the last
+        step's end forces were (:meth:`_end_forces`).
 
         The bath energy E(y) − E(x) (x the spins at the bath's start) and the
         predictor's field take one pass after the move, not a pass at y: for
