@@ -140,14 +140,19 @@ def _diffused(sx, sy, sz, sigma, x1, x2):
 
 
 @nb.njit(cache=True, inline="always")
-def _direction(B, i):
-    """(b̂, |B|) of row i; b̂ = 0 where B = 0."""
-    bx, by, bz = B[i, 0], B[i, 1], B[i, 2]
+def _unit_and_length(bx, by, bz):
+    """(b̂, |b|) of the vector b; b̂ = 0 where b = 0."""
     b = np.sqrt(bx * bx + by * by + bz * bz)
     if b == 0.0:
         return 0.0, 0.0, 0.0, 0.0
     inv = 1.0 / b
     return bx * inv, by * inv, bz * inv, b
+
+
+@nb.njit(cache=True, inline="always")
+def _direction(B, i):
+    """(b̂, |B|) of row i; b̂ = 0 where B = 0."""
+    return _unit_and_length(B[i, 0], B[i, 1], B[i, 2])
 
 
 # The kernels below run over blocks of BLOCK spins, each in two loops: one
@@ -167,14 +172,8 @@ def _rows(a, lo, m):
 def _field_direction(B, B0, w, i):
     """:func:`_direction` of the field F = (1 + w) B − w B0 at row i."""
     a = 1.0 + w
-    bx = a * B[i, 0] - w * B0[i, 0]
-    by = a * B[i, 1] - w * B0[i, 1]
-    bz = a * B[i, 2] - w * B0[i, 2]
-    b = np.sqrt(bx * bx + by * by + bz * bz)
-    if b == 0.0:
-        return 0.0, 0.0, 0.0, 0.0
-    inv = 1.0 / b
-    return bx * inv, by * inv, bz * inv, b
+    return _unit_and_length(a * B[i, 0] - w * B0[i, 0], a * B[i, 1] - w * B0[i, 1],
+                            a * B[i, 2] - w * B0[i, 2])
 
 
 @threaded()

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import numba as nb
 import numpy as np
 
@@ -249,15 +247,16 @@ class ExchangeOperator(SpinOperator):
                                            pairs.half)[1:])
         return out[0], virial
 
-
     def forces_and_field(self, W, forces, u, field):
         """forces += the exchange forces at spins W, field += B(u) = Σ_j J_ij u_j
         for other spins u, in one pass over the pairs: the same bits as
         :meth:`add` (forces alone) and :meth:`field` called apart (a
         thermostat's field after its noise, with the step's last forces)."""
         pairs = self.pairs
-        if not (pairs.half and self.stored):
-            self.add(W, _FORCES_WANT, _NO_D, forces, _NO_EX)
+        if not (pairs.half and self.stored):  # no twin for these forms: two passes
+            from ..hamiltonian import Want  # (it imports the terms)
+
+            self.add(W, Want(forces=True), _NO_D, forces, _NO_EX)
             self.field(u, field)
             return
         _spin_pass_half_forces_field(threads.count(), pairs.row, pairs.j, pairs.image,
@@ -483,9 +482,6 @@ class Exchange(SpinTerm):
 
 _NO_D = np.zeros((0, 3))
 _NO_EX = np.zeros(0)
-#: :meth:`ExchangeOperator.add`'s request of forces alone (as a Want)
-_FORCES_WANT = SimpleNamespace(magnetic_forces=False, forces=True, energy=False,
-                               energies=False, virial=False)
 
 
 def _copy_positions(positions, buffer):
