@@ -383,6 +383,39 @@ def test_atoms_changed_between_runs_are_picked_up():
     assert state_error(state(a), state(b)) < 1e-13
 
 
+
+@pytest.mark.parametrize("cls", ["CollectivePRK", "Langevin"])
+def test_atoms_changed_by_an_observer_are_picked_up(cls):
+    """Inside one run() the steps between observers skip comparing the Atoms
+    with the state (nothing else runs there); a step after an observer that
+    changed them must start from the change: the run equals runs of 3 steps
+    with the same changes made between them. CollectivePRK takes the compiled
+    blocks at this size, Langevin the step-by-step path."""
+
+    def make():
+        a = fcc_cobalt(2, temperature_K=300)
+        if cls == "CollectivePRK":
+            return a, CollectivePRK(a, 1 * units.fs)
+        return a, ase_spin.Langevin(a, 1 * units.fs, 300.0, spin_damping=0.1,
+                                    friction=0.01 / units.fs, rng=5)
+
+    def change(a):
+        a.positions[3] += 0.01
+        a.arrays["momenta"][2] *= 1.5
+        a.arrays["initial_magmoms"][1] *= -1.0
+
+    a, dyn = make()
+    dyn.attach(lambda: change(a) if 0 < dyn.nsteps < 9 else None, interval=3)
+    dyn.run(9)
+    b, ref = make()
+    for k in range(3):
+        ref.run(3)
+        if k < 2:
+            change(b)
+    assert ref.nsteps == dyn.nsteps == 9
+    for x, y in zip(state(a), state(b)):
+        np.testing.assert_array_equal(x, y)
+
 def test_not_converging_raises_and_keeps_last_good_state():
     atoms = fcc_cobalt(2, temperature_K=300)
     dyn = CollectivePRK(atoms, 1 * units.fs, solver="jacobi")  # the others converge at 8 fs
