@@ -74,7 +74,7 @@ def max_displacement(positions, reference):
         dy = positions[a, 1] - reference[a, 1]
         dz = positions[a, 2] - reference[a, 2]
         d2 = dx * dx + dy * dy + dz * dz
-        if not d2 <= worst:
+        if not d2 <= worst and worst == worst:  # a NaN stays
             worst = d2
             at = a
     return np.sqrt(worst), at

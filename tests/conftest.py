@@ -55,6 +55,24 @@ def structures():
     return out
 
 
+@pytest.fixture(autouse=True)
+def _threads_as_they_were():
+    """Each test starts with the threads' mode and numba's thread count as the
+    process had them: a KeyboardInterrupt that lands between a ``with``
+    context's entry and the start of its body (tests/test_validation.py raises
+    one at every line of a step) skips its exit, which CPython's with
+    statement cannot prevent, and would carry a serial mode into later tests."""
+    import numba as nb
+
+    from ase_spin import threads
+
+    mode = (threads._mode.serial, threads._mode.tiny)
+    count = nb.get_num_threads()
+    yield
+    threads._mode.serial, threads._mode.tiny = mode
+    nb.set_num_threads(count)
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)

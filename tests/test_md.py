@@ -11,7 +11,7 @@ from ase.md.verlet import VelocityVerlet
 
 import ase_spin
 from ase_spin import CollectivePRK, Cubic, Exchange, LennardJones, SpinLatticeCalculator
-from ase_spin.md import SpinConvergenceError
+from ase_spin.md import IntegrationError, SpinConvergenceError
 from ase_spin.md.compositions import COMPOSITIONS
 from ase_spin.md.ode import reference_solution
 from ase_spin.scenes import fcc_cobalt, paper_chain
@@ -442,6 +442,17 @@ def test_lattice_blow_up_raises_and_keeps_last_good_state():
     with pytest.raises(ase_spin.UnstableStepError, match="reduce it"):
         dyn.run(1)
     assert state_error(state(atoms), before) == 0.0
+
+
+def test_a_nan_displacement_is_named_non_finite_not_a_large_move():
+    """A NaN in q̃ (which the displacement maxima now keep) is reported as a
+    non-finite state naming the atom, not as an atom that moved too far."""
+    dyn = CollectivePRK(fcc_cobalt(2), 0.1 * units.fs)
+    dyn.run(1)
+    with pytest.raises(IntegrationError, match=r"non-finite positions \(atom 3"):
+        dyn._check_moved(float("nan"), 3, dyn.dt)
+    with pytest.raises(IntegrationError, match="atom 3 moved 5 Å"):
+        dyn._check_moved(5.0, 3, dyn.dt)
 
 
 def test_overlapping_atoms_raise_named_error():

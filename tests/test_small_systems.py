@@ -77,6 +77,28 @@ def test_kick_drift_is_kick_then_drift_bitwise(nthreads, twin):
     assert largest == np.abs(q).max()
 
 
+
+
+@pytest.mark.parametrize("nthreads", [1, 2, 3])
+@pytest.mark.parametrize("bad", [0, 17, 36])
+def test_a_nan_is_not_lost_by_the_maxima(nthreads, bad):
+    """A NaN anywhere (first row, middle, last) makes every maximum NaN, the
+    displacement's atom the NaN's: a later finite value must not replace it
+    (``not x <= max`` alone forgets a NaN as soon as the next value comes)."""
+    n = 37
+    q = np.zeros((n, 3))
+    p, f, cp, cq = (np.zeros((n, 3)) for _ in range(4))
+    m = np.ones(n)
+    p[:, 0] = np.linspace(0.1, 1.0, n)  # finite moves after the NaN, larger ones
+    p[bad, 1] = np.nan
+    q[bad, 2] = np.nan
+    P, mid, qt, cqt = (np.empty((n, 3)) for _ in range(4))
+    moved, atom, apart, largest = kernels.kick_drift.parallel(
+        nthreads, p, 0.5, f, cp, P, mid, q, m, 1.0, cq, qt, cqt, np.zeros((n, 3)))
+    assert np.isnan(moved) and atom == bad and np.isnan(apart) and np.isnan(largest)
+    moved, atom = max_displacement(qt, np.zeros((n, 3)))
+    assert np.isnan(moved) and atom == bad
+    assert np.isnan(kernels.max_abs_difference(qt, np.zeros((n, 3))))
 class _GeneralPath:
     """The step's pieces as they were before the small-system work: the kick,
     the drift and the checks as separate calls, the spin forces through

@@ -702,6 +702,8 @@ class SpinLatticeDynamics(MolecularDynamics):
     def _check_moved(self, moved, atom, h):
         """:meth:`_check_displacement` given the largest displacement."""
         limit = 0.5 * self.ev.skin
+        if moved != moved:  # NaN: a non-finite force or momentum, not a large move
+            self._raise_nonfinite(0, atom)
         if not moved <= limit:
             raise UnstableStepError(
                 f"atom {atom} moved {moved:.3g} Å in one step (at most half the "

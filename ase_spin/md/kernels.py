@@ -819,16 +819,16 @@ def kick_drift(nthreads, p, a, f, carry_p, P, carry_mid, q, m, h, carry_q, qt, c
                 carry_qt[i, c] = b - (x - q[i, c])
                 qt[i, c] = x
                 e = abs(x - reference[i, c])
-                if not e <= d:
+                if not e <= d and d == d:  # a NaN stays
                     d = e
                 e = abs(q[i, c])
-                if not e <= big:
+                if not e <= big and big == big:
                     big = e
             dx = qt[i, 0] - q[i, 0]
             dy = qt[i, 1] - q[i, 1]
             dz = qt[i, 2] - q[i, 2]
             d2 = dx * dx + dy * dy + dz * dz
-            if not d2 <= w2:
+            if not d2 <= w2 and w2 == w2:
                 w2 = d2
                 at = i
         worst[t] = w2
@@ -840,12 +840,12 @@ def kick_drift(nthreads, p, a, f, carry_p, P, carry_mid, q, m, h, carry_q, qt, c
     d = 0.0
     big = 0.0
     for t in range(nthreads):
-        if not worst[t] <= w2:
+        if not worst[t] <= w2 and w2 == w2:
             w2 = worst[t]
             at = where[t]
-        if not apart[t] <= d:
+        if not apart[t] <= d and d == d:
             d = apart[t]
-        if not largest[t] <= big:
+        if not largest[t] <= big and big == big:
             big = largest[t]
     return np.sqrt(w2), at, d, big
 
@@ -946,12 +946,12 @@ def _extrapolated(c, h0, h1, h2, h3, i, k):
 
 @nb.njit(cache=True)
 def max_abs_difference(a, b):
-    """max |a − b| over all elements."""
+    """max |a − b| over all elements (NaN if any difference is NaN)."""
     worst = 0.0
     for i in range(a.shape[0]):
         for c in range(a.shape[1]):
             d = abs(a[i, c] - b[i, c])
-            if not d <= worst:
+            if not d <= worst and worst == worst:  # a NaN stays
                 worst = d
     return worst
 
