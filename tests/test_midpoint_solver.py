@@ -374,3 +374,46 @@ def test_chebyshev_bound_only_for_auto_jacobi_from_a_measured_contraction():
     assert kernels.chebyshev_bound(0.3, False) == 0.0
     assert kernels.chebyshev_bound(1.0, True) == 0.0  # 1: not measured yet
     assert kernels.chebyshev_bound(0.5 * kernels.CHEBYSHEV_FROM, True) == 0.0
+
+
+@pytest.mark.parametrize("memory, half", [(0, True), (0, False), (3, True)])
+def test_a_non_finite_field_is_not_converged(memory, half):
+    """A NaN in one coupling spreads through the spins sweep by sweep; the
+    solver must say NOT_CONVERGED (its check for a non-finite field), not
+    report the dropped rows' change as 0 and converge on NaN spins (a plain
+    max(m, d) per row forgets a NaN d)."""
+    from ase_spin.md import kernels
+
+    n = 6
+    row = np.arange(n + 1) if half else 2 * np.arange(n + 1)
+    ring = np.roll(np.arange(n), -1)
+    nbr = ring if half else np.stack([ring, np.roll(np.arange(n), 1)], axis=1).ravel()
+    J = np.full(len(nbr), 0.01)
+    J[2] = np.nan
+    rng = np.random.default_rng(0)
+    s = rng.normal(size=(n, 3))
+    s /= np.linalg.norm(s, axis=1)[:, None]
+    W, Wn, st = s.copy(), np.empty_like(s), np.empty_like(s)
+    solve = kernels.midpoint_solve_half if half else kernels.midpoint_solve
+    its, delta, status, *_ = solve.serial(1, row, nbr.astype(np.int32), J, s, W, Wn, st,
+                                          np.full(n, 0.1), 1e-15, 6.4e-14, 50, 0.5,
+                                          np.zeros_like(s), np.zeros_like(s), memory, True,
+                                          0.0)
+    assert status == kernels.NOT_CONVERGED, (its, delta, status)
+
+
+def test_a_solve_stopped_by_a_non_finite_field_names_the_atom():
+    """What CollectivePRK says when its solver stops on a NaN: a non-finite
+    field at an atom (IntegrationError), not "reduce the timestep"."""
+    from ase_spin.md import IntegrationError
+
+    atoms = fcc_cobalt(2)
+    dyn = CollectivePRK(atoms, 0.1 * units.fs)
+    dyn.run(1)
+    st = dyn._state
+    W = st.s.copy()
+    W[5] = np.nan
+    with pytest.raises(IntegrationError, match=r"non-finite spins \(atom 5"):
+        dyn._raise_not_converged(st.ops, W, 3, float("nan"), dyn._scale(dyn.dt), True)
+    with pytest.raises(SpinConvergenceError, match="did not converge"):
+        dyn._raise_not_converged(st.ops, st.s, 50, 1e-3, dyn._scale(dyn.dt), True)

@@ -445,6 +445,11 @@ class CollectivePRK(SpinLatticeDynamics):
         B = np.zeros_like(W)
         for op in operators:
             op.field(W, B, mean)
+        if delta != delta:  # NaN: a field that is not finite, not a step too large
+            row = kernels.first_nonfinite_row(W)  # the spin the NaN spread from, else
+            row = row if row >= 0 else kernels.first_nonfinite_row(B)  # the field's
+            if row >= 0:
+                self._raise_nonfinite(2, row)
         field = np.sqrt(np.einsum("ij,ij->i", B, B))
         x = float(np.nanmax(np.abs(scale) * field)) if len(field) else 0.0
         if self._solver == "jacobi":

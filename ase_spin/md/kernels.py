@@ -487,7 +487,8 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
                                          carry_out)
                 if mixing:  # the next iterate too, over x_{k−1} (used if this is not the last)
                     _mix_row(i, prev, nxt, omega)
-                m = max(m, d)
+                if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
+                    m = d
             change[t] = m
         delta = change.max()
         status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
@@ -589,7 +590,8 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
                                          carry_out)
                 if mixing:  # the next iterate too, over x_{k−1} (used if this is not the last)
                     _mix_row(i, prev, nxt, omega)
-                m = max(m, d)
+                if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
+                    m = d
             change[t] = m
         delta = change.max()
         status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
@@ -631,7 +633,8 @@ def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, l
                                      carry, carry_out)
             if omega > 0.0:
                 _mix_row(i, prev, Wnext, omega)
-            m = max(m, d)
+            if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
+                m = d
         change[t] = m
     return change.max()
 
