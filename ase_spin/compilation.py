@@ -16,6 +16,15 @@ Where the cache lives (numba's rule): ``NUMBA_CACHE_DIR`` if set; else the
 a virtual environment or a user install); else numba's per-user cache folder
 (``~/.cache/numba`` on Linux, for a system-wide install a user cannot write).
 Set ``ASE_SPIN_QUIET_COMPILE=1`` to silence the line.
+
+numba keys a cached kernel by its own source file only (a hash of that file):
+a kernel that inlines a helper from another module keeps the helper's old
+machine code after an edit of that module alone (a ``git pull`` into an
+editable install, a developer's change). So that no kernel outlives the source
+it was compiled from, importing ase_spin compares a hash of the whole package's
+source (:func:`source_digest`) with the one stamped in each of its numba cache
+folders and, where they differ, removes this package's cached kernels there
+(they are compiled afresh, once) before any is loaded.
 """
 
 from __future__ import annotations
@@ -25,7 +34,11 @@ import sys
 
 from numba.core import event
 
-__all__ = ["cache_dir", "install"]
+__all__ = ["cache_dir", "clear_stale_caches", "install", "source_digest"]
+
+#: The file in each numba cache folder holding the source digest its kernels
+#: of this package were compiled from.
+STAMP = "ase_spin-source.sha1"
 
 _MESSAGE = ("ase_spin: compiling numba kernels on first use (once per install and CPU; "
             "10-20 s on 2 idle cores); they are cached in {where} and load in about a "
@@ -98,4 +111,93 @@ def cache_dir(dispatcher):
     return cache._cache_path
 
 
+_digest = None
+
+
+def source_digest():
+    """SHA-1 of every source file of this package (once per process): what a
+    compiled kernel may run, through the helpers it inlines from any module."""
+    global _digest
+    if _digest is None:
+        import hashlib
+        from pathlib import Path
+
+        digest = hashlib.sha1()
+        root = Path(__file__).resolve().parent
+        for path in sorted(root.rglob("*.py")):
+            try:
+                digest.update(str(path.relative_to(root)).encode())
+                digest.update(path.read_bytes())
+            except OSError:  # unreadable: the code hashes alone for it
+                pass
+        _digest = digest.digest()
+    return _digest
+
+
+def _probe():
+    """A function for numba's cache locators to place (they read its first line)."""
+
+
+def cache_folders():
+    """{numba's cache folder: the package folder it caches} for every folder of
+    this package's modules, chosen as numba chooses it for a kernel there
+    (``NUMBA_CACHE_DIR``, the ``__pycache__`` beside the module if writable, or
+    the user's numba cache)."""
+    from pathlib import Path
+
+    from numba.core import caching
+
+    impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl")
+    folders = {}
+    root = Path(__file__).resolve().parent
+    for folder in sorted({path.parent for path in root.rglob("*.py")}):
+        module = str(min(folder.glob("*.py")))
+        for locator in impl._locator_classes:
+            found = locator.from_function(_probe, module)
+            if found is not None:
+                folders[found.get_cache_path()] = folder
+                break
+    return folders
+
+
+def clear_stale_caches(folders=None, digest=None):
+    """Remove this package's cached kernels from every numba cache folder whose
+    stamp (:data:`STAMP`) is not the current source digest, then stamp it.
+    ``folders``: {cache folder: package folder} (default :func:`cache_folders`).
+    Returns the files removed. Best effort: a folder that cannot be read or
+    written is left as numba would leave it."""
+    digest = (digest or source_digest()).hex()
+    removed = []
+    for cache, folder in (cache_folders() if folders is None else folders).items():
+        stamp = os.path.join(cache, STAMP)
+        try:
+            with open(stamp) as f:
+                if f.read().strip() == digest:
+                    continue
+        except OSError:
+            pass
+        modules = {os.path.splitext(name)[0] for name in os.listdir(folder)
+                   if name.endswith(".py")}
+        try:
+            for name in os.listdir(cache):
+                # numba's names: <module>.<qualname>-<line>.py<version>.nbi / .nbc
+                if name.endswith((".nbi", ".nbc")) and name.split(".", 1)[0] in modules:
+                    try:
+                        os.remove(os.path.join(cache, name))
+                        removed.append(os.path.join(cache, name))
+                    except FileNotFoundError:  # another process removed it first
+                        pass
+            partial = f"{stamp}.{os.getpid()}"
+            with open(partial, "w") as f:
+                f.write(digest + "\n")
+            os.replace(partial, stamp)
+        except OSError:
+            continue
+    return removed
+
+
 install()
+try:
+    clear_stale_caches()
+except Exception:  # noqa: BLE001 - numba's cache internals moved: its own rules apply
+    pass

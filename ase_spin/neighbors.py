@@ -390,7 +390,7 @@ def _bin_along(c, n, periodic):
     return c, 0, 0 <= c < n
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _grid_row(i, pos, cell, bins, off, start, order, psorted, osorted, nbins, rb, periodic,
               cut2, hw, fill, k0, j_out, img_out, s_out, lookup, present):
     """Visit atom i's neighbours j ≥ i (j = i: images with a lexicographically

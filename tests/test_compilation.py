@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 SCRIPT = r"""
@@ -55,6 +57,7 @@ def test_compile_with_names_a_skeleton_after_the_package_source(monkeypatch):
     """A skeleton compiled with bound functions is cached under a name carrying
     a hash of the whole package's source: an edit of any helper it runs (in
     any module) gives a new cache entry instead of the stale machine code."""
+    from ase_spin import compilation
     from ase_spin.md import fused, kernels
     from ase_spin.terms import base
 
@@ -66,5 +69,83 @@ def test_compile_with_names_a_skeleton_after_the_package_source(monkeypatch):
 
     assert base._source_digest() and name() == name()
     first = name()
-    monkeypatch.setattr(base, "_package_digest", b"another source")
+    monkeypatch.setattr(compilation, "_digest", b"another source")
     assert name() != first
+
+
+def test_stale_cached_kernels_are_removed_once_per_source(tmp_path):
+    """A cache folder stamped with another source digest (or none) loses this
+    package's cached kernels — those of its own folder's modules only — and is
+    stamped; with the current stamp nothing is removed."""
+    from ase_spin import compilation
+
+    package = tmp_path / "pkg"
+    cache = tmp_path / "cache"
+    package.mkdir()
+    cache.mkdir()
+    (package / "kernels.py").write_text("")
+    ours = ["kernels.kick-12.py311.nbi", "kernels.kick-12.py311.1.nbc"]
+    theirs = ["other.f-3.py311.nbi", "kernels.txt"]
+    for name in ours + theirs:
+        (cache / name).write_bytes(b"x")
+    folders = {str(cache): package}
+    removed = compilation.clear_stale_caches(folders, b"one")
+    assert sorted(removed) == sorted(str(cache / n) for n in ours)
+    assert sorted(p.name for p in cache.iterdir()) == sorted(theirs + [compilation.STAMP])
+    assert (cache / compilation.STAMP).read_text().strip() == b"one".hex()
+    (cache / ours[0]).write_bytes(b"x")  # compiled again from the same source: kept
+    assert compilation.clear_stale_caches(folders, b"one") == []
+    assert compilation.clear_stale_caches(folders, b"two") == [str(cache / ours[0])]
+
+
+def test_every_cache_folder_of_the_package_carries_the_current_stamp():
+    """Importing ase_spin has stamped each folder numba caches its kernels in."""
+    from ase_spin import compilation
+
+    folders = compilation.cache_folders()
+    assert len(folders) >= 3  # ase_spin, ase_spin/md, ase_spin/terms
+    for cache in folders:
+        with open(os.path.join(cache, compilation.STAMP)) as f:
+            assert f.read().strip() == compilation.source_digest().hex()
+    from ase_spin.md import kernels
+    from ase_spin.neighbors import max_displacement
+
+    assert compilation.cache_dir(kernels.kick.parallel) in folders
+    assert compilation.cache_dir(max_displacement) in folders
+
+
+EDIT = r"""
+import sys
+from ase_spin.scenes import fcc_cobalt
+atoms = fcc_cobalt(2)
+print(atoms.get_potential_energy())
+"""
+
+
+@pytest.mark.slow
+def test_an_edit_of_an_inlined_helper_reaches_the_kernels_that_inline_it(tmp_path):
+    """End to end, in a copy of the package: a kernel cached on disk, then an
+    edit of a helper it inlines from another module (``separation`` in
+    neighbors.py, inlined by the Lennard-Jones kernel): the next process gives
+    the edited result, not the cached machine code's."""
+    import shutil
+
+    shutil.copytree(ROOT / "ase_spin", tmp_path / "ase_spin",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    env = {**os.environ, "PYTHONPATH": str(tmp_path), "ASE_SPIN_QUIET_COMPILE": "1"}
+    env.pop("NUMBA_CACHE_DIR", None)
+
+    def energy():
+        done = subprocess.run([sys.executable, "-c", EDIT], capture_output=True, text=True,
+                              env=env, timeout=600, cwd=tmp_path)
+        assert done.returncode == 0, done.stderr
+        return float(done.stdout.strip().splitlines()[-1])
+
+    before = energy()
+    assert energy() == before  # from the cache
+    neighbors = tmp_path / "ase_spin" / "neighbors.py"
+    text = neighbors.read_text()
+    old = "    return dx, dy, dz, dx * dx + dy * dy + dz * dz\n"
+    assert text.count(old) == 1
+    neighbors.write_text(text.replace(old, "    return dx, dy, dz, 1.01 * (dx * dx + dy * dy + dz * dz)\n"))
+    assert energy() != before

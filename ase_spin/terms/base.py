@@ -590,28 +590,11 @@ def compile_pair_pass(field, energy, name):
                         parallel=True)
 
 
-_package_digest = None
-
-
 def _source_digest():
-    """SHA-1 of every source file of this package (once per process): what a
-    skeleton compiled with :func:`compile_with` may run, through the functions
-    bound into it and the helpers they call in turn."""
-    global _package_digest
-    if _package_digest is None:
-        import hashlib
-        from pathlib import Path
+    """The package's source digest (:func:`ase_spin.compilation.source_digest`)."""
+    from ..compilation import source_digest
 
-        digest = hashlib.sha1()
-        root = Path(__file__).resolve().parent.parent
-        for path in sorted(root.rglob("*.py")):
-            try:
-                digest.update(str(path.relative_to(root)).encode())
-                digest.update(path.read_bytes())
-            except OSError:  # unreadable: the code hashes alone for it
-                pass
-        _package_digest = digest.digest()
-    return _package_digest
+    return source_digest()
 
 
 def compile_with(skeleton, functions, name, parallel=False):
