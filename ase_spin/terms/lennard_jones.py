@@ -217,6 +217,8 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
     fbuf = np.zeros((nthreads, n if want_forces else 0, 3))
     ebuf = np.zeros((nthreads, n if want_energies else 0, 1))
     acc = np.zeros((nthreads, 7))
+    # one species (the common case): no gather of the neighbour's type
+    single = table.shape[0] == 1
     for c in nb.prange(nthreads):
         e = 0.0
         vxx = 0.0
@@ -233,7 +235,7 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
             ei = 0.0
             for k in range(row[i], row[i + 1]):
                 j = nbr[k]
-                tj = types[j]
+                tj = 0 if single else types[j]
                 dx, dy, dz, r2 = separation(pos, images, i, j, image[k])
                 rc2 = table[ti, tj, _RC2]
                 if r2 >= rc2:
