@@ -246,13 +246,14 @@ def _density_kernel(nthreads, pos, row, nbr, image, images, types, rhor, t_rho, 
     n = len(row) - 1
     bounds = balanced_chunks(row, nthreads)
     rbuf = np.zeros((nthreads, n, 1))
+    single = t_rho.shape[0] == 1  # one element: no gather of the neighbour's type
     for c in nb.prange(nthreads):
         for i in range(bounds[c], bounds[c + 1]):
             ti = types[i]
             rho_i = 0.0
             for k in range(row[i], row[i + 1]):
                 j = nbr[k]
-                tj = types[j]
+                tj = 0 if single else types[j]
                 dx, dy, dz, r2 = separation(pos, images, i, j, image[k])
                 if r2 >= cutsq or t_rho[ti, tj] < 0:
                     continue
@@ -318,6 +319,7 @@ def _pair_kernel(nthreads, pos, row, nbr, image, images, types, rhor, z2r, t_rho
     ebuf = np.zeros((nthreads, n if want_energies else 0, 1))
     acc = np.zeros((nthreads, 7))
     need_derivative = want_forces or want_virial
+    single = t_z2r.shape[0] == 1  # one element: no gather of the neighbour's type
     for c in nb.prange(nthreads):
         e = 0.0
         vxx = 0.0
@@ -335,7 +337,7 @@ def _pair_kernel(nthreads, pos, row, nbr, image, images, types, rhor, z2r, t_rho
             fp_i = fp[i]
             for k in range(row[i], row[i + 1]):
                 j = nbr[k]
-                tj = types[j]
+                tj = 0 if single else types[j]
                 dx, dy, dz, r2 = separation(pos, images, i, j, image[k])
                 if r2 >= cutsq or t_z2r[ti, tj] < 0:
                     continue
