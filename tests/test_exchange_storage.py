@@ -493,3 +493,44 @@ def test_the_virial_of_an_operator_prepared_without_it_is_an_error(monkeypatch):
     again = ev.spin_operators(atoms.positions, virial=True, half=True, out=[op])[0]
     assert again.pos is not None
     assert np.abs(ev.spin([again], get_spins(atoms), Want(virial=True)).virial).max() > 0.0
+
+
+@pytest.mark.parametrize("n", [3, 8])
+@pytest.mark.parametrize("with_field", [False, True])
+def test_forces_here_and_there_are_two_passes_to_the_bit(n, with_field):
+    """ExchangeOperator.forces_here_and_there: the forces at q into F and, once
+    the kept partial sums are added onto a base (add_kept), the forces at q̃, and
+    with u the field B(u) at q̃ — in one pass over the pairs, each the result of
+    its own pass (add, forces_and_field) bit for bit; serial at 108 atoms,
+    threaded at 2 048. Operators on other lists or without pair vectors: None."""
+    from ase_spin.terms.exchange import add_kept
+
+    atoms = fcc_cobalt(n, temperature_K=300.0)
+    rng = np.random.default_rng(3)
+    term = Exchange(_bs(), rc=4.0, offset=True)
+    atoms.calc = SpinLatticeCalculator([term])
+    ev, _ = atoms.calc.bound_evaluator(atoms)
+    q = atoms.positions.copy()
+    qt = q + rng.normal(scale=0.01, size=q.shape)
+    W = get_spins(atoms)
+    u = cone(len(atoms), rng, 40.0)
+    base, FL = rng.normal(size=q.shape), rng.normal(size=q.shape)
+    forces = Want(forces=True)
+    with threads.threads_for(len(atoms)):
+        here = ev.spin_operators(q, half=True)[0]
+        ev.refresh(qt)
+        there = ev.spin_operators(qt, half=True, mean_with=[here], refreshed=True)[0]
+        assert here.pairs_with(there)
+        F, B = base.copy(), np.zeros_like(W)
+        keep = here.forces_here_and_there(W, F, there, *((u, B) if with_field else ()))
+        end = add_kept(keep, FL, np.empty_like(FL))
+        F1, F2, B2 = base.copy(), FL.copy(), np.zeros_like(W)
+        here.add(W, forces, np.zeros((0, 3)), F1, np.zeros(0))
+        if with_field:
+            there.forces_and_field(W, F2, u, B2)
+        else:
+            there.add(W, forces, np.zeros((0, 3)), F2, np.zeros(0))
+        full = ev.spin_operators(q, half=False)[0]
+    assert np.array_equal(F, F1) and np.array_equal(end, F2) and np.array_equal(B, B2)
+    assert np.abs(end - FL).max() > 1e-3  # the forces at q̃ are not nothing
+    assert not full.pairs_with(there) and full.forces_here_and_there(W, F, there) is None

@@ -838,14 +838,22 @@ def _early_run(monkeypatch, early, friction, steps, fail_at=None):
     with monkeypatch.context() as m:
         general_path_only(m)
         if not early:
-            m.setattr(Langevin, "_end_forces", ase_spin.CollectivePRK._end_forces)
+            for name in ("_end_forces", "_round_forces", "_finish_round", "_drop_round"):
+                m.setattr(Langevin, name, getattr(ase_spin.CollectivePRK, name))
         forces_and_field = exchange.ExchangeOperator.forces_and_field
+        finish = Langevin._finish_round
 
         def spy(self, *args):
             calls[0] += 1
             return forces_and_field(self, *args)
 
+        def spy_finish(self, pending):  # the bath begun in the pass of the last round
+            calls[0] += len(pending) > 1
+            return finish(self, pending)
+
         m.setattr(exchange.ExchangeOperator, "forces_and_field", spy)
+        if early:
+            m.setattr(Langevin, "_finish_round", spy_finish)
         opening = Langevin._opening_bath
         openings = [0]
 
@@ -872,10 +880,13 @@ def _early_run(monkeypatch, early, friction, steps, fail_at=None):
 def test_bath_begun_with_the_end_forces_changes_no_bit(monkeypatch, friction):
     """With the closing bath put off and exchange alone, the next bath's
     y₀ = D N D s̃ and B(y₀) are made with the step's end forces, in their pass
-    over the pairs (Langevin._end_forces, ExchangeOperator.forces_and_field):
-    the run is the same to the bit as with that work left to the next step
-    (the keys drawn in the same order, lattice then spins); and a step that
-    fails after it puts the rng back to before those keys, as without it."""
+    over the pairs (Langevin._end_forces, ExchangeOperator.forces_and_field;
+    or, begun in the last outer round's pass with the forces at q too,
+    Langevin._round_forces, ExchangeOperator.forces_here_and_there, the keys
+    put back when that round does not settle the step): the run is the same
+    to the bit as with that work left to the next step (the keys drawn in the
+    same order, lattice then spins); and a step that fails after it puts the
+    rng back to before those keys, as without it."""
     got, state, calls = _early_run(monkeypatch, True, friction, 12)
     want, want_state, none = _early_run(monkeypatch, False, friction, 12)
     assert calls == 11 and none == 0  # every step but the last (not put off)

@@ -201,6 +201,9 @@ class CollectivePRK(SpinLatticeDynamics):
         st.predictor_order = [0 for _ in self.gammas]
         st.theta = [1.0 for _ in self.gammas]
         st.settle = [0.0 for _ in self.gammas]
+        # the outer round in which the last step settled (its forces at q then
+        # also give the end forces' partial sums, see _round_forces), per stage
+        st.settled_round = [1 for _ in self.gammas]
         st.ops_next = None
         st.modes = {}
         st.Wnext = np.zeros_like(st.s)
@@ -246,8 +249,15 @@ class CollectivePRK(SpinLatticeDynamics):
         settle = None
         solves = 0
         loose = False  # the last solve stopped at first_tol > tol
-        for _ in range(_MAX_OUTER):
-            F = self._spin_forces(st.ops, W, st.FL)
+        s_new = None
+        pending = None  # the end forces begun in this round's pass (_round_forces)
+        for round_ in range(_MAX_OUTER):
+            if s_new is not None and round_ == st.settled_round[stage]:
+                # the round the last step settled in: its forces at q, in the
+                # same pass, also give the end forces (q̃, W) if it settles too
+                F, pending = self._round_forces(W, s_new)
+            else:
+                F = self._spin_forces(st.ops, W, st.FL)
             # kick from p, drift to q̃ (one compiled pass), with max|q̃ − q| and
             # max|q̃ − q̃ of the last iteration|
             # from the second round on, into the last round's P and carry and a
@@ -267,10 +277,14 @@ class CollectivePRK(SpinLatticeDynamics):
                 qtol = self._settled_qtol(largest)
             elif apart <= qtol:
                 if not loose:
+                    st.settled_round[stage] = round_
                     break
                 # q̃ settled after the loose first solve: finish that solve at its
                 # couplings, then check q̃ once more
                 new_q = False
+            if pending is not None:  # W or q̃'s couplings change below: not the end's
+                self._drop_round(pending)
+                pending = None
             if new_q:
                 if ev.refresh(qt):  # a new pair list: the operators at q must use it too
                     st.ops = ev.spin_operators(q, out=st.ops, half=self.half_lists)
@@ -288,13 +302,17 @@ class CollectivePRK(SpinLatticeDynamics):
                     settle = moved
             if moved <= self._settled_tol():
                 # W moved by round-off only: P and q̃ computed from it stand
+                st.settled_round[stage] = -1  # (no round's forces gave the end's)
                 break
         else:
             raise SpinConvergenceError(
                 f"positions q̃ and midpoint spins did not settle in {_MAX_OUTER} "
                 f"outer iterations at step {self.nsteps}; reduce the timestep")
         self._lattice_at(qt, want_energy)
-        F = self._end_forces(st.ops_next, W, s_new)
+        if pending is not None:
+            F = self._finish_round(pending)
+        else:
+            F = self._end_forces(st.ops_next, W, s_new)
         kernels.kick(P, 0.5 * h, self._md_forces(F, qt), st.carry_mid, P, st.carry_p)
         st.carry_q, st.carry_s = carry_q, carry_s
         if settle is not None:
@@ -303,6 +321,34 @@ class CollectivePRK(SpinLatticeDynamics):
         st.q, st.p, st.s = qt, self._adjust_momenta(P, qt), s_new
         st.ops, st.ops_next = st.ops_next, st.ops
         return iterations, geometries
+
+    def _round_forces(self, W, s_new):
+        """The forces at (q, W) of an outer round after a solve, and, where one
+        pass over the pairs gives both (one exchange operator kept with its pair
+        vectors), the end
+        forces at (q̃, W) begun in it: (F, pending or None). ``pending`` is
+        finished by :meth:`_finish_round` if the round settles the step (no
+        solve after it), else dropped (:meth:`_drop_round`). The same bits as
+        :meth:`_spin_forces` then :meth:`_end_forces`."""
+        st = self._state
+        ops, there = st.ops, st.ops_next
+        if len(ops) == 1 and len(there) == 1 and hasattr(ops[0], "forces_here_and_there"):
+            F = st.FL.copy()
+            keep = ops[0].forces_here_and_there(W, F, there[0])
+            if keep is not None:
+                return F, (keep,)
+        return self._spin_forces(st.ops, W, st.FL), None
+
+    def _finish_round(self, pending):
+        """The end forces F_L(q̃) + the kept partial sums of :meth:`_round_forces`."""
+        from ..terms.exchange import add_kept
+
+        FL = self._state.FL
+        return add_kept(pending[0], FL, np.empty_like(FL))
+
+    def _drop_round(self, pending):
+        """The end forces begun by :meth:`_round_forces` are not the step's: undo
+        what beginning them changed (nothing here)."""
 
     def _end_forces(self, operators, W, s_new):
         """The forces at (q̃, W) for a step's last half kick (s_new: the spins

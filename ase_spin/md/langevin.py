@@ -713,9 +713,27 @@ class Langevin(CollectivePRK):
         (lattice, then spins): the same numbers, the same bits."""
         st = self._state
         op = operators[0] if len(operators) == 1 else None
-        if (st.field_out is None or not st.field_filled or not self._spin_bath_on()
-                or not hasattr(op, "forces_and_field")):
+        if not self._bath_begins_early(op):
             return super()._end_forces(operators, W, s_new)
+        lattice_key, y0, rng_state = self._begin_bath(s_new)
+        F = st.FL.copy()
+        B1 = np.zeros_like(s_new)
+        op.forces_and_field(W, F, y0, B1)
+        st.early = (lattice_key, y0, B1, rng_state)
+        return F
+
+    def _bath_begins_early(self, op):
+        """Whether the next bath's first part is made with the step's end forces
+        (:meth:`_end_forces`; ``op`` the one spin operator at q̃, else None)."""
+        st = self._state
+        return (st.field_out is not None and st.field_filled and self._spin_bath_on()
+                and hasattr(op, "forces_and_field"))
+
+    def _begin_bath(self, s_new):
+        """y₀ = D(h/2) N(h) D(h/2) s̃ into the spare spins, its keys drawn as
+        :meth:`_opening_bath` would (lattice, then spins): (lattice key, y₀,
+        the rng state before the keys)."""
+        st = self._state
         rng_state = self.rng.bit_generator.state
         lattice_key = new_key(self.rng) if self._lattice_bath_on() else None
         kappa_h, sig_h, _, _ = self._coefficients()
@@ -726,11 +744,33 @@ class Langevin(CollectivePRK):
         y0 = st.s_spare
         bath_block(s_new, y0, st.s_before, st.field_out, st.B_y0, 1.0, 0.5 * kappa_h, sigma,
                    key, 0.5 * kappa_h, self.ev.magnetic)
+        return lattice_key, y0, rng_state
+
+    def _round_forces(self, W, s_new):
+        """CollectivePRK's, with the next bath's first part (:meth:`_end_forces`)
+        begun in the same pass too: the forces at (q, W) and at (q̃, W) and the
+        fields B(y₀) at q̃, one pass over the pairs."""
+        st = self._state
+        ops, there = st.ops, st.ops_next
+        here = ops[0] if len(ops) == 1 else None
+        op = there[0] if len(there) == 1 else None
+        if not (self._bath_begins_early(op) and hasattr(here, "pairs_with")
+                and here.pairs_with(op)):
+            return super()._round_forces(W, s_new)
+        lattice_key, y0, rng_state = self._begin_bath(s_new)
         F = st.FL.copy()
         B1 = np.zeros_like(s_new)
-        op.forces_and_field(W, F, y0, B1)
-        st.early = (lattice_key, y0, B1, rng_state)
-        return F
+        keep = here.forces_here_and_there(W, F, op, u=y0, field=B1)
+        return F, (keep, (lattice_key, y0, B1, rng_state))
+
+    def _finish_round(self, pending):
+        if len(pending) > 1:
+            self._state.early = pending[1]
+        return super()._finish_round(pending)
+
+    def _drop_round(self, pending):
+        if len(pending) > 1:  # the keys drawn for a bath begun too early: not drawn
+            self.rng.bit_generator.state = pending[1][3]
 
     def _settled_tol(self):
         """With a bath on, the step is not reversible and moves each spin by

@@ -264,6 +264,42 @@ class ExchangeOperator(SpinOperator):
                                      self.offset, field, forces, _NO_EX, True, True, False,
                                      False, False)
 
+    def pairs_with(self, there):
+        """Whether :meth:`forces_here_and_there` takes this operator and
+        ``there`` in one pass: both on one half list, with their pair vectors."""
+        pairs, other = self.pairs, getattr(there, "pairs", None)
+        return bool(pairs.half and self.stored and getattr(there, "stored", False)
+                    and self.offset == there.offset
+                    and (other is pairs or (other.row is pairs.row and other.j is pairs.j)))
+
+    def forces_here_and_there(self, W, forces, there, u=None, field=None):
+        """The exchange forces at spins W from this operator (the step's
+        positions q) added into ``forces``, and those from ``there`` (the
+        operator prepared at the step's other end q̃, on the same pairs) kept
+        as per-thread partial sums, in one pass over the pairs; with ``u``,
+        also field += B(u) = Σ_j J_ij u_j with ``there``'s couplings (a
+        thermostat's field after its noise). Returns the partial sums (give
+        them to :func:`add_kept` with the forces to add them to, which makes
+        them the forces of :meth:`add` at ``there`` to the bit), or None where
+        this storage has no such pass (nothing was computed)."""
+        if not self.pairs_with(there):
+            return None
+        pairs = self.pairs
+        n = len(pairs.row) - 1
+        with_field = u is not None
+        keep = np.empty((threads.count(), n, 9 if with_field else 6))
+        _forces_two_pass(threads.count(), pairs.row, pairs.j, self.G, there.G, W,
+                         self.offset, forces, keep, there.J, u if with_field else _NO_D,
+                         field if with_field else _NO_D)
+        return keep
+
+
+def add_kept(keep, base, out):
+    """out = base + the partial sums ``keep`` of :meth:`ExchangeOperator.forces_here_and_there`
+    (threads in order: the rounding of a pass's own reduction onto ``base``)."""
+    _add_kept(keep, base, out)
+    return out
+
 
 def _field(pairs, J, W, out):
     """out_i += Σ_j J_k W_j over a pair list (full: gather; half: scatter)."""
@@ -903,6 +939,120 @@ def _virial_pass(nthreads, row, nbr, image, images, G, pos, s, c, half):
         acc[t, 5] = vxz
         acc[t, 6] = vxy
     return sum_over_threads(acc)
+
+
+@threaded()
+def _forces_two_pass(nthreads, row, nbr, G, G2, s, c, F, keep, J2, u, B):
+    """Over a half list, w = s_i·s_j − c, the forces of two pair geometries of
+    one list (G at the positions q, G2 at q̃) for the same spins s, each with
+    the arithmetic of :func:`_spin_pass_half`'s forces:
+
+    F_i −= w G, F_j += w G (summed into F);  the same with G2, left as
+    per-thread partial sums in keep[t, :, 0:3] (:func:`_add_kept`);
+
+    with ``u`` (non-empty), also B_i += J2 u_j, B_j += J2 u_i (summed into B).
+    ``keep`` (nthreads, n, 6 or 9) is the scatter buffer, all of one atom's
+    columns on one cache line: keep[t, :, 3:6] the forces at q, 6:9 the field."""
+    n = len(row) - 1
+    bounds = balanced_chunks(row, nthreads)
+    want_b = u.shape[0] > 0
+    for t in nb.prange(nthreads):
+        for i in range(n):
+            for col in range(keep.shape[2]):
+                keep[t, i, col] = 0.0
+        for i in range(bounds[t], bounds[t + 1]):
+            sx = s[i, 0]
+            sy = s[i, 1]
+            sz = s[i, 2]
+            vx = u[i, 0] if want_b else 0.0
+            vy = u[i, 1] if want_b else 0.0
+            vz = u[i, 2] if want_b else 0.0
+            fx = 0.0
+            fy = 0.0
+            fz = 0.0
+            hx = 0.0
+            hy = 0.0
+            hz = 0.0
+            bx = 0.0
+            by = 0.0
+            bz = 0.0
+            for k in range(row[i], row[i + 1]):
+                j = nbr[k]
+                if want_b:
+                    Jk = J2[k]
+                    bx += Jk * u[j, 0]
+                    by += Jk * u[j, 1]
+                    bz += Jk * u[j, 2]
+                    keep[t, j, 6] += Jk * vx
+                    keep[t, j, 7] += Jk * vy
+                    keep[t, j, 8] += Jk * vz
+                w = sx * s[j, 0] + sy * s[j, 1] + sz * s[j, 2] - c
+                gx = w * G[k, 0]
+                gy = w * G[k, 1]
+                gz = w * G[k, 2]
+                fx -= gx
+                fy -= gy
+                fz -= gz
+                keep[t, j, 3] += gx
+                keep[t, j, 4] += gy
+                keep[t, j, 5] += gz
+                gx = w * G2[k, 0]
+                gy = w * G2[k, 1]
+                gz = w * G2[k, 2]
+                hx -= gx
+                hy -= gy
+                hz -= gz
+                keep[t, j, 0] += gx
+                keep[t, j, 1] += gy
+                keep[t, j, 2] += gz
+            if want_b:
+                keep[t, i, 6] += bx
+                keep[t, i, 7] += by
+                keep[t, i, 8] += bz
+            keep[t, i, 3] += fx
+            keep[t, i, 4] += fy
+            keep[t, i, 5] += fz
+            keep[t, i, 0] += hx
+            keep[t, i, 1] += hy
+            keep[t, i, 2] += hz
+    for i in nb.prange(n):  # (as reduce_threads: t in order)
+        fx = F[i, 0]
+        fy = F[i, 1]
+        fz = F[i, 2]
+        for t in range(nthreads):
+            fx += keep[t, i, 3]
+            fy += keep[t, i, 4]
+            fz += keep[t, i, 5]
+        F[i, 0] = fx
+        F[i, 1] = fy
+        F[i, 2] = fz
+        if want_b:
+            bx = B[i, 0]
+            by = B[i, 1]
+            bz = B[i, 2]
+            for t in range(nthreads):
+                bx += keep[t, i, 6]
+                by += keep[t, i, 7]
+                bz += keep[t, i, 8]
+            B[i, 0] = bx
+            B[i, 1] = by
+            B[i, 2] = bz
+
+
+@threaded()
+def _add_kept(keep, base, out):
+    """out_i = base_i + Σ_t keep[t, i, 0:3], t in order (reduce_threads onto base)."""
+    for i in nb.prange(base.shape[0]):
+        x = base[i, 0]
+        y = base[i, 1]
+        z = base[i, 2]
+        for t in range(keep.shape[0]):
+            x += keep[t, i, 0]
+            y += keep[t, i, 1]
+            z += keep[t, i, 2]
+        out[i, 0] = x
+        out[i, 1] = y
+        out[i, 2] = z
 
 
 _spin_pass_kernel = threaded()(_spin_pass)
