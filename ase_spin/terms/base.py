@@ -290,7 +290,12 @@ class SpinOperator:
     what the compiled midpoint solvers and the thermostat's forms take; and
     ``forces_and_field(W, forces, u, field)`` — the lattice forces at W and the
     field C u at other spins u in one pass (the thermostat's fields after its
-    noise, with a step's last forces).
+    noise, with a step's last forces); ``pairs_with(there)`` and
+    ``forces_here_and_there(W, forces, there, u=None, field=None)`` — the
+    lattice forces at W of this operator and of ``there`` (prepared at the
+    step's other end, on the same pairs: kept as per-thread partial sums for
+    ``add_kept``), and optionally C u, in one pass (a step's forces at q with
+    its end forces).
 
     Non-magnetic atoms get zero field.
     """
