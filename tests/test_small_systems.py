@@ -595,3 +595,33 @@ def test_a_block_stopping_mid_way_hands_that_step_to_the_general_path(order, mon
     if order == 4:
         assert [stage for stage, _ in runs[0][2]] == [2]
     assert np.array_equal(runs[0][0], runs[1][0]) and runs[0][1] == runs[1][1]
+
+
+@pytest.mark.parametrize("dt_fs", [0.1, 0.5])
+def test_fused_end_forces_begun_in_the_last_rounds_pass_change_no_bit(monkeypatch, dt_fs):
+    """The fused step and its blocks begin the end forces in the pass of the
+    outer round the last step settled in, as the general path does
+    (CollectivePRK._round_forces; the operator's forces_two and add_kept
+    pieces): the same bits as with a pass for each, blocks and single steps."""
+    from ase_spin.md import fused
+
+    monkeypatch.setattr(fused, "FUSE_AFTER_STEPS", 0)
+    pieces = fused._pieces
+
+    def go(merge):
+        with monkeypatch.context() as m:
+            if not merge:
+                m.setattr(fused, "_pieces", lambda dyn: (
+                    None if pieces(dyn) is None else pieces(dyn)[:4] + (False,)))
+            atoms = fcc_cobalt(3, temperature_K=300)
+            dyn = CollectivePRK(atoms, dt_fs * units.fs)
+            for _ in range(3):
+                dyn.run(5)
+                dyn.step()
+            return atoms, dyn
+
+    (a, dyn), (b, _) = go(True), go(False)
+    assert dyn._state.fused[2]["merge"]
+    for x, y in ((a.positions, b.positions), (a.get_momenta(), b.get_momenta()),
+                 (a.get_initial_magnetic_moments(), b.get_initial_magnetic_moments())):
+        np.testing.assert_array_equal(x, y)

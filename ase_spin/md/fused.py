@@ -44,7 +44,7 @@ _DONE, _GIVE_UP = 0, 1
 def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, scale, tol,
           first_tol, floor, max_iter, theta, lattice, op_q, op_t, reference, half_skin,
           settled_tol, qtol_floor, memory, local, switch, chebyshev, predict, coef, hs,
-          n_history, probe, field):
+          n_history, probe, field, merge, settled_round):
     """The skeleton of the fused step (compiled with ``lattice_forces``,
     ``spin_forces``, ``spin_geometry`` and ``spin_couplings`` bound to the
     terms' pieces): CollectivePRK._coupled_step for one spin operator on a
@@ -64,7 +64,11 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     have predicted the increment W − s best (CollectivePRK._remember_midpoint's,
     from ``n_history`` increments and the rows ``probe``), else −1; ``settle``:
     how far the second solve moved W, or −1. ``field`` receives the last
-    solve's midpoint fields (kernels.midpoint_solve_half's ``field``)."""
+    solve's midpoint fields (kernels.midpoint_solve_half's ``field``). With
+    ``merge`` (the operator offers ``spin_forces_two``), the outer round
+    ``settled_round`` (the one the last step settled in) also begins the end
+    forces, as CollectivePRK._round_forces; returned last: the round this step
+    settled in (−1: by a solve that moved W by round-off only)."""
     if predict:
         W = np.empty_like(s)
         extrapolate(coef, hs[0], hs[1], hs[2], hs[3], hs[4], hs[5], hs[6], hs[7],  # noqa: F821
@@ -83,9 +87,17 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     solves = 0
     loose = False
     settle = -1.0
-    for _ in range(MAX_OUTER):
+    solved = False
+    pending = False  # the end forces begun in this round's pass
+    keep = np.empty((0, 0, 6))
+    settled_in = -1
+    for rnd in range(MAX_OUTER):
         F = FL.copy()
-        spin_forces(W, op_q, F)  # noqa: F821 - bound per combination of terms
+        if merge and solved and rnd == settled_round:
+            keep = spin_forces_two(W, op_q, op_t, F)  # noqa: F821 - bound per combination
+            pending = True
+        else:
+            spin_forces(W, op_q, F)  # noqa: F821 - bound per combination of terms
         P = np.empty_like(p)
         qt = np.empty_like(q)
         carry_qt = np.empty_like(q)
@@ -94,18 +106,22 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
         new_q = True  # as CollectivePRK: a new q̃ gets its couplings
         if first:
             if not moved <= half_skin:
-                return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s)
+                return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
+                        settled_round)
             qtol = max(4.0 * _EPS * max(1.0, largest), qtol_floor)
             first = False
         elif apart <= qtol:
             if not loose:
                 settled = True
+                settled_in = rnd
                 break
             new_q = False  # settled after the loose first solve: finish it at its couplings
+        pending = False  # W or q̃'s couplings change below: not the end's
         if new_q:
             # the pair list must stay valid at q̃ (else the general path rebuilds it)
             if not max_displacement(qt, reference)[0] <= half_skin:
-                return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s)
+                return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
+                        settled_round)
             spin_geometry(qt, op_t, op_q)  # noqa: F821
             geometries += 1
         row, nbr, c = spin_couplings(op_t)  # noqa: F821
@@ -117,11 +133,13 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
             min(1.0, 2.0 * theta), carry_s, carry, memory, local,
             kernels.chebyshev_bound(theta, chebyshev), field)
         if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch):
-            return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s)
+            return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
+                        settled_round)
         if 0.0 <= measured < 1.0:  # observed (−1: none was)
             theta = measured
         if which == 1:
             W, Wnext = Wnext, W
+        solved = True
         iterations += its
         loose = use_tol > tol
         if new_q:
@@ -131,15 +149,22 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
                 settle = moved_w
         if moved_w <= settled_tol:
             settled = True
+            settled_in = -1
             break
     if not settled:
-        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s)
+        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
+                        settled_round)
     FLt = np.zeros_like(q)
     lattice_forces(qt, lattice, FLt)  # noqa: F821
     if not all_finite(FLt):
-        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s)
-    F = FLt.copy()
-    spin_forces(W, op_t, F)  # noqa: F821
+        return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
+                        settled_round)
+    if pending:
+        F = np.empty_like(FLt)
+        add_kept(keep, FLt, F)  # noqa: F821
+    else:
+        F = FLt.copy()
+        spin_forces(W, op_t, F)  # noqa: F821
     kick(P, 0.5 * h, F, carry_mid, P, carry_p)  # noqa: F821
     order = -1
     increment = s  # (not used without the predictor)
@@ -149,7 +174,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
                            hs[6], hs[7], hs[8], hs[9], hs[10], hs[11], increment, probe,
                            probe)
     return (_DONE, qt, P, stilde, carry_qt, carry, FLt, W, Wnext, theta, iterations,
-            geometries, order, settle, increment)
+            geometries, order, settle, increment, settled_in)
 
 
 @nb.njit(cache=True, inline="always")
@@ -173,7 +198,7 @@ def _history(ring, stage, head, count):
 def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, carry_mid,
          Wnext, tol, fraction, floor, max_iter, theta, settle, memory, local, switch,
          chebyshev, orders, ring, counts, heads, probe, lattice, op_q, op_t, reference,
-         half_skin, settled_tol, qtol_floor, coefficients):
+         half_skin, settled_tol, qtol_floor, coefficients, merge, rounds):
     """Up to ``steps`` whole steps (every stage γ_k h of the composition) of the
     fused step (compiled with ``fused_step`` bound to :func:`_step` of the
     terms' pieces), as CollectivePRK takes them one by one with nothing
@@ -181,7 +206,8 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
     the Python side keeps per stage comes in arrays, updated in place: the
     contraction ``theta``, how far the second solve moved W (``settle``), the
     predictor's ``orders`` and its increments in ``ring`` (stage, slot, n, 3)
-    with ``counts`` kept and the newest at ``heads``. A step is taken whole or
+    with ``counts`` kept and the newest at ``heads``, the outer round each
+    stage settled in (``rounds``; ``merge``: see :func:`_step`). A step is taken whole or
     not at all: where a stage gives up (see :func:`_step`) the state is that
     of the last whole step (``carry_p``, the one array the step changes in
     place, put back). Returns (steps done, the stage that gave up or −1, q, p,
@@ -196,6 +222,7 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
     new_theta = theta.copy()
     new_settle = settle.copy()
     new_orders = orders.copy()
+    new_rounds = rounds.copy()
     done = 0
     sweeps = 0
     last_sweeps = 0
@@ -213,12 +240,13 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
             hs = _history(ring, stage, head, count)
             first_tol = min(1e-6, max(tol, fraction * settle[stage]))
             (status, qt, P, s_new, cq, cs, FLt, W, Wn, th, its, geos, order, moved,
-             increment) = fused_step(  # noqa: F821 - bound per combination of terms
+             increment, rnd) = fused_step(  # noqa: F821 - bound per combination of terms
                 q, p, s, FL, m, gammas[stage] * dt, carry_q, carry_p, carry_s, carry_mid,
                 hs[0], Wnext, scales[stage], tol, first_tol, floor, max_iter[stage],
                 theta[stage], lattice, oq, ot, reference, half_skin, settled_tol, qtol_floor,
                 memory[stage], local[stage], switch[stage], chebyshev[stage], count > 0,
-                coefficients[min(orders[stage], count - 1)], hs, count, probe, field)
+                coefficients[min(orders[stage], count - 1)], hs, count, probe, field, merge,
+                rounds[stage])
             if status != _DONE:
                 failed = stage
                 break
@@ -228,6 +256,7 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
             if moved >= 0.0:
                 new_settle[stage] = moved
             new_orders[stage] = order
+            new_rounds[stage] = rnd
             increments[stage] = increment
             its_step += its
             geometries += geos
@@ -239,6 +268,7 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
             theta[stage] = new_theta[stage]
             settle[stage] = new_settle[stage]
             orders[stage] = new_orders[stage]
+            rounds[stage] = new_rounds[stage]
             heads[stage] = (heads[stage] + 1) % depth
             ring[stage, heads[stage]] = increments[stage]
             counts[stage] = min(counts[stage] + 1, depth)
@@ -334,22 +364,37 @@ def _no_lattice(positions, data, forces):
 _steps = {}
 
 
-def step_function(lattice, spin):
-    """The fused step for a lattice piece and a spin operator's pieces
-    (compiled once per combination, cached on disk)."""
-    key = (lattice, *spin)
+def step_function(lattice, spin, two=None):
+    """The fused step for a lattice piece and a spin operator's pieces, with
+    its ``(forces_two, add_kept)`` pieces if it offers them (compiled once per
+    combination, cached on disk)."""
+    two = two or (_no_forces_two, _no_add_kept)
+    key = (lattice, *spin, *two)
     fn = _steps.get(key)
     if fn is None:
         forces, geometry, couplings = spin
         fn = _steps[key] = compile_with(
             _step, {"lattice_forces": lattice, "spin_forces": forces,
                     "spin_geometry": geometry, "spin_couplings": couplings,
+                    "spin_forces_two": two[0], "add_kept": two[1],
                     "kick_drift": kernels.kick_drift.serial, "kick": kernels.kick.serial,
                     "solve_half": kernels.midpoint_solve_half.serial,
                     "extrapolate": kernels._extrapolate.serial,
                     "best_order": kernels._best_order},
             f"{lattice.__name__}_{forces.__name__}")
     return fn
+
+
+@nb.njit(cache=True)
+def _no_forces_two(W, data, there, F):
+    """Stands for a ``forces_two`` piece the operator does not offer (never
+    called: the step's ``merge`` is then False)."""
+    return np.empty((0, 0, 6))
+
+
+@nb.njit(cache=True)
+def _no_add_kept(keep, base, out):
+    """Stands for an ``add_kept`` piece the operator does not offer."""
 
 
 _pairs_of = {}
@@ -452,7 +497,8 @@ def _pays(dyn, step):
 
 def _pieces(dyn):
     """(the fused step, lattice data, the two spin operators' data: at q and at
-    q̃) when the system is small (light kernels serial: threads.small()) and
+    q̃, whether the step may begin the end forces in an outer round's pass) when
+    the system is small (light kernels serial: threads.small()) and
     every term offers its pieces, else None."""
     st = dyn._state
     ev = dyn.ev
@@ -484,11 +530,13 @@ def _pieces(dyn):
     lattice_fn, lattice_data = plan
     step = pieces.get("step")
     if step is None:
-        step = pieces["step"] = step_function(lattice_fn, piece_t[:3])
+        two = piece_t[4] if len(piece_t) > 4 else None
+        step = pieces["step"] = step_function(lattice_fn, piece_t[:3], two)
+        pieces["merge"] = two is not None and len(piece_q) > 4
     reference = ev.neighbors.reference
     if reference is None or reference.shape != st.q.shape:
         return None
-    return step, lattice_data, piece_q[3], piece_t[3]
+    return step, lattice_data, piece_q[3], piece_t[3], pieces["merge"]
 
 
 def _solver_settings(dyn, stage, h):
@@ -517,7 +565,7 @@ def collective_step(dyn, h, stage):
     got = _pieces(dyn)
     if got is None:
         return None
-    step, lattice_data, data_q, data_t = got
+    step, lattice_data, data_q, data_t, merge = got
     if not threads.tiny() and not _pays(dyn, step):
         return None
     st = dyn._state
@@ -541,7 +589,7 @@ def collective_step(dyn, h, stage):
         n_history = 0
         coef = kernels._COEFFICIENTS[0]
     (status, qt, P, s_new, carry_q, carry_s, FL, W, Wnext, theta, iterations,
-     geometries, order, settle, increment) = step(st.q, st.p, st.s, st.FL, dyn.masses[:, 0], h,
+     geometries, order, settle, increment, settled_in) = step(st.q, st.p, st.s, st.FL, dyn.masses[:, 0], h,
                                        st.carry_q, st.carry_p, st.carry_s, st.carry_mid, W,
                                        st.Wnext, scale, dyn.tol,
                                        collective.first_tolerance(dyn.tol, st.settle[stage]),
@@ -549,9 +597,10 @@ def collective_step(dyn, h, stage):
                                        data_q, data_t, ev.neighbors.reference, 0.5 * ev.skin,
                                        dyn._settled_tol(), dyn._settled_qtol(0.0), memory,
                                        local, switch, chebyshev, predict, coef, hs, n_history,
-                                       st.probe, field)
+                                       st.probe, field, merge, st.settled_round[stage])
     if status != _DONE:
         return None
+    st.settled_round[stage] = settled_in
     st.field_filled = st.field_out is not None
     st.theta[stage] = theta
     st.Wnext = Wnext
@@ -665,7 +714,7 @@ def collective_block(dyn, steps):
     got = _pieces(dyn)
     if got is None:
         return 0, 0, 0, 0
-    step, lattice_data, data_q, data_t = got
+    step, lattice_data, data_q, data_t, merge = got
     run = _runner(step)
     # its compilation (~5 s: the step's code is compiled again inside it) is
     # paid as the fused step's is, whatever the size
@@ -678,6 +727,7 @@ def collective_block(dyn, steps):
     theta = np.array(st.theta, dtype=float)
     settle = np.array(st.settle, dtype=float)
     orders = np.array(st.predictor_order, dtype=np.int64)
+    rounds = np.array(st.settled_round, dtype=np.int64)
     (done, failed, q, p, s, FL, carry_q, carry_s, Wnext, swapped, sweeps, last_sweeps,
      last_geometries) = run(steps, st.q, st.p, st.s, st.FL, dyn.masses[:, 0], dyn.dt, gammas,
                             scales, st.carry_q, st.carry_p, st.carry_s, st.carry_mid,
@@ -687,7 +737,7 @@ def collective_block(dyn, steps):
                             data_q,
                             data_t, ev.neighbors.reference, 0.5 * ev.skin,
                             dyn._settled_tol(), dyn._settled_qtol(0.0),
-                            kernels._COEFFICIENTS)
+                            kernels._COEFFICIENTS, merge, rounds)
     if done:
         st.q, st.p, st.s, st.FL = q, p, s, FL
         st.EL, st.EL_terms, st.VL = None, None, None
@@ -697,6 +747,7 @@ def collective_block(dyn, steps):
         st.theta = theta.tolist()
         st.settle = settle.tolist()
         st.predictor_order = orders.tolist()
+        st.settled_round = rounds.tolist()
         _keep_history(st, ring, counts, heads)
     if failed > 0:
         # a later stage gave up: the operator at q was refilled at that stage's

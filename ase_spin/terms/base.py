@@ -316,6 +316,13 @@ class SpinOperator:
         - ``couplings(data) -> (row, nbr, c)``: the midpoint field as
           B̄_i = Σ_k c_k W_j over a half pair list (``linear_pairs(mean=True)``).
 
+        Optionally a fifth element ``(forces_two, add_kept)``:
+        ``forces_two(W, data, there, F) -> keep`` adds the forces as ``forces``
+        and returns those of the operator with data ``there`` (the other end of
+        the step, on the same pairs) as per-thread partial sums, which
+        ``add_kept(keep, base, out)`` adds onto ``base`` as a pass of their own
+        would (``forces_here_and_there``).
+
         None (the default): the integrators take their general path."""
         return None
 

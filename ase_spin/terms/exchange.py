@@ -199,7 +199,7 @@ class ExchangeOperator(SpinOperator):
         # the fused step (two more cost the 30-atom chain ~0.7 µs per step)
         return (_exchange_forces, geometry, _exchange_couplings,
                 (threads.count(), p.row, p.j, p.image, p.images, self.J, self.G, self.Jbar,
-                 self.offset, self.params))
+                 self.offset, self.params), (_exchange_forces_two, _exchange_add_kept))
 
     def linear_pairs(self, mean=False):
         """(pairs, c) with B_i = Σ_j c_k W_j over the pairs k = (i → j): the
@@ -1180,6 +1180,30 @@ def _exchange_forces(W, data, F):
     _forces_pass_serial(nthreads, row, nbr, image, images, J, np.zeros(0), G,
                         np.zeros((0, 3)), W, W, offset, np.zeros((0, 3)), F, np.zeros(0),
                         False, True, False, False, False)
+
+
+_forces_two_serial = _forces_two_pass.serial
+_add_kept_serial = _add_kept.serial
+
+
+@nb.njit(cache=True)
+def _exchange_forces_two(W, data, there, F):
+    """F += the exchange forces at spins W (data: the operator at q), and the
+    forces of the operator ``there`` (at q̃, the same pairs) as per-thread
+    partial sums, returned for :func:`_exchange_add_kept`
+    (:meth:`ExchangeOperator.forces_here_and_there`, serial twin): a piece of
+    the fused step."""
+    nthreads, row, nbr, image, images, J, G, Jbar, offset, params = data
+    keep = np.empty((nthreads, len(row) - 1, 6))
+    _forces_two_serial(nthreads, row, nbr, G, there[6], W, offset, F, keep, there[5],
+                       np.zeros((0, 3)), np.zeros((0, 3)))
+    return keep
+
+
+@nb.njit(cache=True)
+def _exchange_add_kept(keep, base, out):
+    """out = base + the kept partial sums (:func:`add_kept`): a piece of the fused step."""
+    _add_kept_serial(keep, base, out)
 
 
 @nb.njit(cache=True)
