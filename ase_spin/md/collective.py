@@ -325,8 +325,7 @@ class CollectivePRK(SpinLatticeDynamics):
     def _round_forces(self, W, s_new):
         """The forces at (q, W) of an outer round after a solve, and, where one
         pass over the pairs gives both (one exchange operator kept with its pair
-        vectors), the end
-        forces at (q̃, W) begun in it: (F, pending or None). ``pending`` is
+        vectors), the end forces at (q̃, W) begun in it: (F, pending or None). ``pending`` is
         finished by :meth:`_finish_round` if the round settles the step (no
         solve after it), else dropped (:meth:`_drop_round`). The same bits as
         :meth:`_spin_forces` then :meth:`_end_forces`."""

@@ -639,6 +639,22 @@ _FIELD_ONLY = (True, False, False, False, False)
 _FORCES_AND_FIELD = (True, True, False, False, False)
 
 
+@nb.njit(cache=True, inline="always")
+def _add_thread_sums(buf, i, col, base, out):
+    """out_i = base_i + Σ_t buf[t, i, col:col + 3], t in order: reduce_threads'
+    rounding, for the per-thread buffers holding several results per atom."""
+    x = base[i, 0]
+    y = base[i, 1]
+    z = base[i, 2]
+    for t in range(buf.shape[0]):
+        x += buf[t, i, col]
+        y += buf[t, i, col + 1]
+        z += buf[t, i, col + 2]
+    out[i, 0] = x
+    out[i, 1] = y
+    out[i, 2] = z
+
+
 def _spin_pass(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B, F, energies,
                want_b, want_f, want_energy, want_energies, want_virial):
     """One pass over the exchange pairs for spins s (full list, gather into i),
@@ -867,26 +883,9 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
         acc[t, 6] = vxy
     reduce_threads(fbuf, F)
     reduce_threads(bbuf, B)
-    for i in nb.prange(pbuf.shape[1]):  # (as reduce_threads: t in order)
-        fx = F[i, 0]
-        fy = F[i, 1]
-        fz = F[i, 2]
-        bx = B[i, 0]
-        by = B[i, 1]
-        bz = B[i, 2]
-        for t in range(nthreads):
-            fx += pbuf[t, i, 0]
-            fy += pbuf[t, i, 1]
-            fz += pbuf[t, i, 2]
-            bx += pbuf[t, i, 3]
-            by += pbuf[t, i, 4]
-            bz += pbuf[t, i, 5]
-        F[i, 0] = fx
-        F[i, 1] = fy
-        F[i, 2] = fz
-        B[i, 0] = bx
-        B[i, 1] = by
-        B[i, 2] = bz
+    for i in nb.prange(pbuf.shape[1]):
+        _add_thread_sums(pbuf, i, 0, F, F)
+        _add_thread_sums(pbuf, i, 3, B, B)
     reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
     return sum_over_threads(acc)
 
@@ -1015,44 +1014,17 @@ def _forces_two_pass(nthreads, row, nbr, G, G2, s, c, F, keep, J2, u, B):
             keep[t, i, 0] += hx
             keep[t, i, 1] += hy
             keep[t, i, 2] += hz
-    for i in nb.prange(n):  # (as reduce_threads: t in order)
-        fx = F[i, 0]
-        fy = F[i, 1]
-        fz = F[i, 2]
-        for t in range(nthreads):
-            fx += keep[t, i, 3]
-            fy += keep[t, i, 4]
-            fz += keep[t, i, 5]
-        F[i, 0] = fx
-        F[i, 1] = fy
-        F[i, 2] = fz
+    for i in nb.prange(n):
+        _add_thread_sums(keep, i, 3, F, F)
         if want_b:
-            bx = B[i, 0]
-            by = B[i, 1]
-            bz = B[i, 2]
-            for t in range(nthreads):
-                bx += keep[t, i, 6]
-                by += keep[t, i, 7]
-                bz += keep[t, i, 8]
-            B[i, 0] = bx
-            B[i, 1] = by
-            B[i, 2] = bz
+            _add_thread_sums(keep, i, 6, B, B)
 
 
 @threaded()
 def _add_kept(keep, base, out):
-    """out_i = base_i + Σ_t keep[t, i, 0:3], t in order (reduce_threads onto base)."""
+    """out_i = base_i + Σ_t keep[t, i, 0:3] (:func:`_add_thread_sums`)."""
     for i in nb.prange(base.shape[0]):
-        x = base[i, 0]
-        y = base[i, 1]
-        z = base[i, 2]
-        for t in range(keep.shape[0]):
-            x += keep[t, i, 0]
-            y += keep[t, i, 1]
-            z += keep[t, i, 2]
-        out[i, 0] = x
-        out[i, 1] = y
-        out[i, 2] = z
+        _add_thread_sums(keep, i, 0, base, out)
 
 
 _spin_pass_kernel = threaded()(_spin_pass)
