@@ -187,7 +187,9 @@ class Evaluator:
     def state_token(self):
         """Changes whenever the cell, periodicity, moments or pair list change:
         what a holder of prepared operators compares."""
-        return (self._changes, 0 if self.neighbors is None else self.neighbors.builds)
+        if self.neighbors is None:
+            return (self._changes, 0, 0)
+        return (self._changes, self.neighbors.builds, self.neighbors.refilters)
 
     # -- system state -----------------------------------------------------
     def set_cell(self, cell, pbc, bind=True):
@@ -216,11 +218,14 @@ class Evaluator:
         self.system = System(self.species, self.moments, self.cell, self.pbc)
         self._tables = [t.bind(self.system) for t in self.hamiltonian.terms]
 
-    def refresh(self, positions):
-        """Make the pair lists valid for ``positions``; True if rebuilt."""
+    def refresh(self, positions, also=None):
+        """Make the pair lists valid for ``positions`` (and ``also``, other
+        positions the lists will be used at, e.g. a step's start); True if a
+        list changed (rebuilt, or a term's sub-list filtered again: what was
+        prepared from them must be prepared again)."""
         if self.neighbors is None:
             return False
-        return self.neighbors.update(positions, self.cell, self.pbc)
+        return self.neighbors.update(positions, self.cell, self.pbc, also)
 
     def _pairs(self, term, half=False):
         if not term.neighbor_list:

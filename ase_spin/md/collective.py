@@ -286,7 +286,9 @@ class CollectivePRK(SpinLatticeDynamics):
                 self._drop_round(pending)
                 pending = None
             if new_q:
-                if ev.refresh(qt):  # a new pair list: the operators at q must use it too
+                # a new pair list: the operators at q must use it too (so it
+                # must hold at q as well as at q̃)
+                if ev.refresh(qt, also=q):
                     st.ops = ev.spin_operators(q, out=st.ops, half=self.half_lists)
                 st.ops_next = ev.spin_operators(qt, out=st.ops_next, mean_with=st.ops,
                                                 half=self.half_lists, refreshed=True)

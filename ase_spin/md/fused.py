@@ -29,7 +29,7 @@ import numba as nb
 import numpy as np
 
 from .. import threads
-from ..neighbors import all_finite, max_displacement
+from ..neighbors import all_finite, largest_displacements
 from ..terms.base import compile_with
 from . import kernels
 
@@ -42,7 +42,7 @@ _DONE, _GIVE_UP = 0, 1
 
 
 def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, scale, tol,
-          first_tol, floor, max_iter, theta, lattice, op_q, op_t, reference, half_skin,
+          first_tol, floor, max_iter, theta, lattice, op_q, op_t, references, radii,
           settled_tol, qtol_floor, memory, local, switch, chebyshev, predict, coef, hs,
           n_history, probe, field, merge, settled_round):
     """The skeleton of the fused step (compiled with ``lattice_forces``,
@@ -52,7 +52,9 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     s̃, carry of q̃, carry of s̃, F_L(q̃), W, the other W buffer, θ, sweeps,
     geometries, the predictor's order (below), how far the second solve moved W
     or −1, the increment W − s for the predictor's history); status 1: give up,
-    nothing but scratch buffers was written. The first solve stops at
+    nothing but scratch buffers was written (also when an atom moves by more
+    than ``radii[0]`` or q̃ is farther than ``radii`` from ``references``,
+    where the pair list and the sub-lists hold: NeighborCache). The first solve stops at
     ``first_tol``, the others at ``tol`` (collective.first_tolerance).
     ``memory``, ``local``: the midpoint solver (kernels.midpoint_solve_half);
     a solve contracting by more than ``switch`` per sweep also gives up, so
@@ -105,7 +107,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
             1, p, 0.5 * h, F, carry_p, P, carry_mid, q, m, h, carry_q, qt, carry_qt, qt_used)
         new_q = True  # as CollectivePRK: a new q̃ gets its couplings
         if first:
-            if not moved <= half_skin:
+            if not moved <= radii[0]:
                 return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
                         settled_round)
             qtol = max(4.0 * _EPS * max(1.0, largest), qtol_floor)
@@ -119,7 +121,9 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
         pending = False  # W or q̃'s couplings change below: not the end's
         if new_q:
             # the pair list must stay valid at q̃ (else the general path rebuilds it)
-            if not max_displacement(qt, reference)[0] <= half_skin:
+            moved_list, moved_sublists = largest_displacements(qt, references[0],
+                                                               references[1])
+            if not (moved_list <= radii[0] and moved_sublists <= radii[1]):
                 return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
                         settled_round)
             spin_geometry(qt, op_t, op_q)  # noqa: F821
@@ -197,8 +201,8 @@ def _history(ring, stage, head, count):
 
 def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, carry_mid,
          Wnext, tol, fraction, floor, max_iter, theta, settle, memory, local, switch,
-         chebyshev, orders, ring, counts, heads, probe, lattice, op_q, op_t, reference,
-         half_skin, settled_tol, qtol_floor, coefficients, merge, rounds):
+         chebyshev, orders, ring, counts, heads, probe, lattice, op_q, op_t, references,
+         radii, settled_tol, qtol_floor, coefficients, merge, rounds):
     """Up to ``steps`` whole steps (every stage γ_k h of the composition) of the
     fused step (compiled with ``fused_step`` bound to :func:`_step` of the
     terms' pieces), as CollectivePRK takes them one by one with nothing
@@ -243,7 +247,7 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
              increment, rnd) = fused_step(  # noqa: F821 - bound per combination of terms
                 q, p, s, FL, m, gammas[stage] * dt, carry_q, carry_p, carry_s, carry_mid,
                 hs[0], Wnext, scales[stage], tol, first_tol, floor, max_iter[stage],
-                theta[stage], lattice, oq, ot, reference, half_skin, settled_tol, qtol_floor,
+                theta[stage], lattice, oq, ot, references, radii, settled_tol, qtol_floor,
                 memory[stage], local[stage], switch[stage], chebyshev[stage], count > 0,
                 coefficients[min(orders[stage], count - 1)], hs, count, probe, field, merge,
                 rounds[stage])
@@ -539,6 +543,16 @@ def _pieces(dyn):
     return step, lattice_data, piece_q[3], piece_t[3], pieces["merge"]
 
 
+def _references(ev):
+    """The positions the pair list was built and its sub-lists filtered at."""
+    return ev.neighbors.reference, ev.neighbors.fine_reference
+
+
+def _radii(ev):
+    """How far from them (:func:`_references`) they hold: half the skins."""
+    return 0.5 * ev.neighbors.skin, 0.5 * ev.neighbors.fine_skin
+
+
 def _solver_settings(dyn, stage, h):
     """(Anderson memory, locally exact sweep, sweeps allowed, contraction per
     sweep above which to give up, whether the Jacobi sweeps are accelerated)
@@ -594,7 +608,7 @@ def collective_step(dyn, h, stage):
                                        st.Wnext, scale, dyn.tol,
                                        collective.first_tolerance(dyn.tol, st.settle[stage]),
                                        64.0 * dyn.tol, max_iter, st.theta[stage], lattice_data,
-                                       data_q, data_t, ev.neighbors.reference, 0.5 * ev.skin,
+                                       data_q, data_t, _references(ev), _radii(ev),
                                        dyn._settled_tol(), dyn._settled_qtol(0.0), memory,
                                        local, switch, chebyshev, predict, coef, hs, n_history,
                                        st.probe, field, merge, st.settled_round[stage])
@@ -735,7 +749,7 @@ def collective_block(dyn, steps):
                             64.0 * dyn.tol, max_iter, theta, settle, memory, local, switch,
                             chebyshev, orders, ring, counts, heads, st.probe, lattice_data,
                             data_q,
-                            data_t, ev.neighbors.reference, 0.5 * ev.skin,
+                            data_t, _references(ev), _radii(ev),
                             dyn._settled_tol(), dyn._settled_qtol(0.0),
                             kernels._COEFFICIENTS, merge, rounds)
     if done:
