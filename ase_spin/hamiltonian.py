@@ -275,7 +275,9 @@ class Evaluator:
         half pair list (each pair once: half the work and memory; passes over
         it scatter into per-thread buffers) rather than the full one.
         ``refreshed``: the caller has just called :meth:`refresh` with these
-        positions (the pair lists' check, a pass over the atoms, is not repeated)."""
+        positions, or as its ``also`` (the pair lists' check, a pass over the
+        atoms, is not repeated: with other positions it could filter the lists
+        again for these alone)."""
         positions = _as_positions(positions, self.natoms)
         if not refreshed:
             self.refresh(positions)

@@ -118,7 +118,7 @@ def compare(args):
         for name, tree in trees.items():
             cmd = [sys.executable, os.path.abspath(__file__), "--json", "--rounds", "1",
                    "--steps", str(args.steps), "--dt", str(args.dt), "--warmup",
-                   str(args.warmup), "--n",
+                   str(args.warmup), "--threads", str(args.threads), "--n",
                    *map(str, args.n)]
             env = dict(os.environ, ASE_SPIN_TREE=tree)
             out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True).stdout

@@ -289,7 +289,8 @@ class CollectivePRK(SpinLatticeDynamics):
                 # a new pair list: the operators at q must use it too (so it
                 # must hold at q as well as at q̃)
                 if ev.refresh(qt, also=q):
-                    st.ops = ev.spin_operators(q, out=st.ops, half=self.half_lists)
+                    st.ops = ev.spin_operators(q, out=st.ops, half=self.half_lists,
+                                               refreshed=True)
                 st.ops_next = ev.spin_operators(qt, out=st.ops_next, mean_with=st.ops,
                                                 half=self.half_lists, refreshed=True)
                 geometries += 1
