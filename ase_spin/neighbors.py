@@ -12,7 +12,8 @@ than half the skin from where it was when the list was built.
 Two levels of skin. The sub-lists a term gets are filtered from the list at
 their own cutoff plus a finer skin (:data:`FINE_SKIN` of it), at the positions
 of their last filtering, and filtered again (one pass over the list's pairs)
-when an atom has moved more than half the fine skin since; the list itself is
+when an atom has moved more than half the gap between the cutoff and the
+closest pair left out (at least half the fine skin); the list itself is
 rebuilt by the cell search as before. A shell of neighbours just beyond a
 term's cutoff then stays out of its list: fcc Co's exchange at 4.0 Å with the
 skin of 0.3 Å took in, once thermal motion had spread the third shell (4.34
@@ -664,19 +665,27 @@ def _expand(row, j, image, nimages):
 
 
 @nb.njit(cache=True, parallel=prange_only())
-def _filter_count(positions, row, j, image, images, reach, mask, counts):
+def _filter_count(positions, row, j, image, images, reach, mask, counts, nearest):
+    """counts[a + 1]: row a's pairs closer than ``reach`` (both atoms in
+    ``mask``, if given); nearest[a]: the distance of its closest pair left out
+    (inf if none)."""
     n = len(row) - 1
     masked = mask.shape[0] > 0
     for a in nb.prange(n):
         c = 0
+        near = np.inf
         if not masked or mask[a]:
             for k in range(row[a], row[a + 1]):
                 b = j[k]
                 if masked and not mask[b]:
                     continue
-                if np.sqrt(separation(positions, images, a, b, image[k])[3]) < reach:
+                r = np.sqrt(separation(positions, images, a, b, image[k])[3])
+                if r < reach:
                     c += 1
+                else:
+                    near = min(near, r)
         counts[a + 1] = c
+        nearest[a] = near
 
 
 @nb.njit(cache=True, parallel=prange_only())
@@ -760,15 +769,15 @@ class NeighborCache:
     The list is rebuilt when an atom has moved more than ``skin / 2`` since the
     last build, or when the cell, the periodicity or the number of atoms
     changed; ``builds`` counts the builds. The sub-lists are filtered from it at
-    the positions of their last filtering, :attr:`reference`, with reach
+    the positions of their last filtering, :attr:`fine_reference`, with reach
     ``cutoff + fine_skin`` (plus twice the distance of the positions passed as
     ``also`` to :meth:`update`, which must stay covered too), and filtered again
-    when an atom has moved more than ``fine_skin / 2`` from there
-    (``refilters`` counts those that dropped a sub-list). Why both are safe: a
-    pair not in the list was farther apart than ``max(cutoffs) + skin`` at the
-    build and is still beyond ``max(cutoffs)``; a pair in the list but not in a
-    sub-list was at least ``cutoff + fine_skin`` apart at the filtering and is
-    still beyond ``cutoff``.
+    when an atom has moved more than :attr:`fine_radius` from there — half the
+    gap between a sub-list's cutoff and the closest pair it left out, at least
+    ``fine_skin / 2`` (``refilters`` counts the filterings that dropped a
+    sub-list). Why both are safe: a pair not in the list was farther apart than
+    ``max(cutoffs) + skin`` at the build and is still beyond ``max(cutoffs)``;
+    a pair in the list but not in a sub-list is still beyond its cutoff.
 
     Only the half list (each pair once, 6 bytes a pair) and the positions of the
     build and of the filtering are kept: sub-lists at shorter cutoffs, for
@@ -792,6 +801,7 @@ class NeighborCache:
         self._reference = None
         self._fine_reference = None
         self._margin = 0.0  # what the sub-lists' reach adds for `also`
+        self._radii = {}  # each filtered sub-list's: see fine_radius
         self._cell = None
         self._pbc = None
         self._sublists = {}
@@ -821,10 +831,22 @@ class NeighborCache:
         return self._reference
 
     @property
+    def fine_radius(self):
+        """How far from :attr:`fine_reference` an atom may move with the
+        sub-lists still valid: for each, half the gap between its cutoff and
+        the closest pair it left out (at least ``fine_skin / 2``; unbounded if
+        it left none out, as on a perfect lattice whose next shell lies beyond
+        the list); with none, ``fine_skin / 2`` (where the filtering positions
+        move on, so that a sub-list made later holds where the atoms are)."""
+        radii = [self._radii[key] for key, sub in self._sublists.items()
+                 if sub is not self.half and key in self._radii]
+        return min(radii) if radii else 0.5 * self.fine_skin
+
+    @property
     def fine_reference(self):
         """Positions the sub-lists were filtered at: they stay valid while no
-        atom is farther than ``fine_skin / 2`` from here (and the list itself
-        is valid)."""
+        atom is farther than :attr:`fine_radius` from here (and the list
+        itself is valid)."""
         return self._fine_reference
 
     def update(self, positions, cell, pbc, also=None):
@@ -846,12 +868,13 @@ class NeighborCache:
                                                              self._fine_reference)
         if moved_since_build > 0.5 * self.skin:
             return self._build(positions, cell, pbc, also)
-        if not moved > 0.5 * self.fine_skin:
+        if not moved > self.fine_radius:
             return False
         # filter the sub-lists again here (lazily: on their next request)
         fine = [k for k, sub in self._sublists.items() if sub is not self.half]
         for key in fine:
             del self._sublists[key]
+        self._radii = {}
         self._fine_reference = positions.copy()
         self._margin = self._also_margin(positions, also)
         self.refilters += bool(fine)
@@ -869,6 +892,7 @@ class NeighborCache:
         # the old list and its sub-lists go before the new one is built
         self.half = None
         self._sublists = {}
+        self._radii = {}
         n = len(positions)
         if n:
             row, j, image, ints = self._search_half(positions, cell, pbc)
@@ -942,8 +966,12 @@ class NeighborCache:
             m = np.zeros(0, dtype=np.bool_) if mask is None else np.ascontiguousarray(
                 mask, dtype=np.bool_)
             reach = cutoff + self.fine_skin + self._margin
+            nearest = np.empty(n)
             _filter_count(self._fine_reference, master.row, master.j, master.image,
-                          master.images, reach, m, row)
+                          master.images, reach, m, row, nearest)
+            # it holds until a pair left out can come within the cutoff
+            # (nothing left out: as long as the list itself)
+            self._radii[key] = 0.5 * (nearest.min(initial=np.inf) - cutoff)
             np.cumsum(row, out=row)
             j = np.empty(row[-1], dtype=master.j.dtype)
             image = np.empty(row[-1], dtype=master.image.dtype)

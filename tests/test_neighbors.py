@@ -101,7 +101,9 @@ def test_a_sublist_filtered_at_the_end_of_a_step_holds_at_its_start():
     moves 0.21 Å away from atom 0, which moves 0.15 Å the other way: more than
     half the fine skin (a filtering, not a rebuild); the pair, 3.95 Å apart at
     q, is 4.31 Å apart at q̃, beyond 4.0 + 0.3."""
-    q = np.array([[10.0, 10.0, 10.0], [13.95, 10.0, 10.0], [10.0, 14.9, 10.0]])
+    # atom 2 is left out of the sub-list 4.31 Å from atom 0: it holds for
+    # moves up to 0.155 Å
+    q = np.array([[10.0, 10.0, 10.0], [13.95, 10.0, 10.0], [10.0, 14.31, 10.0]])
     qt = q.copy()
     qt[0, 0] -= 0.15
     qt[1, 0] += 0.21
@@ -111,6 +113,7 @@ def test_a_sublist_filtered_at_the_end_of_a_step_holds_at_its_start():
         cache = NeighborCache(4.7, skin=0.6)
         cache.update(q, cell, pbc)
         assert (0, 1) in set(zip(cache.sublist(4.0).i, cache.sublist(4.0).j))
+        assert cache.fine_radius == pytest.approx(0.155)
         assert cache.update(qt, cell, pbc, also=also)
         assert cache.builds == 1 and cache.refilters == 1
         sub = cache.sublist(4.0)
@@ -119,10 +122,12 @@ def test_a_sublist_filtered_at_the_end_of_a_step_holds_at_its_start():
 
 
 def test_update_reports_a_filtering_only_when_a_sublist_was_dropped():
-    """Moving past half the fine skin moves where sub-lists are filtered; it
-    reports a change (True, ``refilters``) only if a sub-list was dropped. The
-    list itself is rebuilt at half the skin from its build, wherever the
-    sub-lists were filtered."""
+    """Moving past half the fine skin (past the sub-lists' radius, if any)
+    moves where sub-lists are filtered; it reports a change (True,
+    ``refilters``) only if a sub-list was dropped. A sub-list holds for half
+    the gap between its cutoff and the closest pair it left out. The list
+    itself is rebuilt at half the skin from its build, wherever the sub-lists
+    were filtered."""
     atoms = bulk("Co", "fcc", a=3.54, cubic=True).repeat(2)
     cell, pbc = atoms.cell.array, atoms.pbc
     cache = NeighborCache(4.0, skin=0.4)
@@ -139,9 +144,16 @@ def test_update_reports_a_filtering_only_when_a_sublist_was_dropped():
     p[3, 0] += 0.02
     assert cache.update(p, cell, pbc) and cache.builds == 2  # 0.21 from the build
     assert cache.sublist(3.0) is not sub
-    sub = cache.sublist(3.0)
+    full = cache.pairs
+    d = np.linalg.norm(p[full.j] + full.shift - p[full.i], axis=1)
+    # half the gap between the cutoff and the closest pair left out
+    assert cache.fine_radius == pytest.approx(0.5 * (d[d >= 3.2].min() - 3.0))
+    nearest = d[d > 3.45].min()  # a sub-list leaving it out by 1 mÅ: 0.1005 Å
+    sub = cache.sublist(nearest - 0.201)
+    assert cache.fine_radius == pytest.approx(0.1005)
     p[5, 1] -= 0.11
     assert cache.update(p, cell, pbc) and (cache.builds, cache.refilters) == (2, 1)
-    assert cache.sublist(3.0) is not sub and cache.sublist(4.0, half=True) is cache.half
+    assert cache.sublist(nearest - 0.201) is not sub
+    assert cache.sublist(4.0, half=True) is cache.half
     with pytest.raises(ValueError, match="fine_skin"):
         NeighborCache(4.0, skin=0.4, fine_skin=0.5)

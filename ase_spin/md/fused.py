@@ -549,8 +549,8 @@ def _references(ev):
 
 
 def _radii(ev):
-    """How far from them (:func:`_references`) they hold: half the skins."""
-    return 0.5 * ev.neighbors.skin, 0.5 * ev.neighbors.fine_skin
+    """How far from them (:func:`_references`) they hold."""
+    return 0.5 * ev.neighbors.skin, ev.neighbors.fine_radius
 
 
 def _solver_settings(dyn, stage, h):
