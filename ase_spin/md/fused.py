@@ -42,9 +42,9 @@ _DONE, _GIVE_UP = 0, 1
 
 
 def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, scale, tol,
-          first_tol, floor, max_iter, theta, lattice, op_q, op_t, references, radii,
-          settled_tol, qtol_floor, memory, local, switch, chebyshev, predict, coef, hs,
-          n_history, probe, field, merge, settled_round):
+          first_tol, floor, max_iter, theta, lattice, op_q, op_t, reference, radius,
+          fine_reference, fine_radius, settled_tol, qtol_floor, memory, local, switch,
+          chebyshev, predict, coef, hs, n_history, probe, field, merge, settled_round):
     """The skeleton of the fused step (compiled with ``lattice_forces``,
     ``spin_forces``, ``spin_geometry`` and ``spin_couplings`` bound to the
     terms' pieces): CollectivePRK._coupled_step for one spin operator on a
@@ -53,8 +53,10 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     geometries, the predictor's order (below), how far the second solve moved W
     or −1, the increment W − s for the predictor's history); status 1: give up,
     nothing but scratch buffers was written (also when an atom moves by more
-    than ``radii[0]`` or q̃ is farther than ``radii`` from ``references``,
-    where the pair list and the sub-lists hold: NeighborCache). The first solve stops at
+    than ``radius`` or q̃ is farther than ``radius`` from ``reference`` or
+    ``fine_radius`` from ``fine_reference``, where the pair list and the
+    sub-lists hold: NeighborCache; separate arguments, not tuples of arrays,
+    which cost the block of steps 5 %). The first solve stops at
     ``first_tol``, the others at ``tol`` (collective.first_tolerance).
     ``memory``, ``local``: the midpoint solver (kernels.midpoint_solve_half);
     a solve contracting by more than ``switch`` per sweep also gives up, so
@@ -107,7 +109,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
             1, p, 0.5 * h, F, carry_p, P, carry_mid, q, m, h, carry_q, qt, carry_qt, qt_used)
         new_q = True  # as CollectivePRK: a new q̃ gets its couplings
         if first:
-            if not moved <= radii[0]:
+            if not moved <= radius:
                 return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
                         settled_round)
             qtol = max(4.0 * _EPS * max(1.0, largest), qtol_floor)
@@ -121,9 +123,8 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
         pending = False  # W or q̃'s couplings change below: not the end's
         if new_q:
             # the pair list must stay valid at q̃ (else the general path rebuilds it)
-            moved_list, moved_sublists = largest_displacements(qt, references[0],
-                                                               references[1])
-            if not (moved_list <= radii[0] and moved_sublists <= radii[1]):
+            moved_list, moved_sublists = largest_displacements(qt, reference, fine_reference)
+            if not (moved_list <= radius and moved_sublists <= fine_radius):
                 return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
                         settled_round)
             spin_geometry(qt, op_t, op_q)  # noqa: F821
@@ -201,8 +202,9 @@ def _history(ring, stage, head, count):
 
 def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, carry_mid,
          Wnext, tol, fraction, floor, max_iter, theta, settle, memory, local, switch,
-         chebyshev, orders, ring, counts, heads, probe, lattice, op_q, op_t, references,
-         radii, settled_tol, qtol_floor, coefficients, merge, rounds):
+         chebyshev, orders, ring, counts, heads, probe, lattice, op_q, op_t, reference,
+         radius, fine_reference, fine_radius, settled_tol, qtol_floor, coefficients, merge,
+         rounds):
     """Up to ``steps`` whole steps (every stage γ_k h of the composition) of the
     fused step (compiled with ``fused_step`` bound to :func:`_step` of the
     terms' pieces), as CollectivePRK takes them one by one with nothing
@@ -247,7 +249,8 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
              increment, rnd) = fused_step(  # noqa: F821 - bound per combination of terms
                 q, p, s, FL, m, gammas[stage] * dt, carry_q, carry_p, carry_s, carry_mid,
                 hs[0], Wnext, scales[stage], tol, first_tol, floor, max_iter[stage],
-                theta[stage], lattice, oq, ot, references, radii, settled_tol, qtol_floor,
+                theta[stage], lattice, oq, ot, reference, radius, fine_reference, fine_radius,
+                settled_tol, qtol_floor,
                 memory[stage], local[stage], switch[stage], chebyshev[stage], count > 0,
                 coefficients[min(orders[stage], count - 1)], hs, count, probe, field, merge,
                 rounds[stage])
@@ -543,14 +546,12 @@ def _pieces(dyn):
     return step, lattice_data, piece_q[3], piece_t[3], pieces["merge"]
 
 
-def _references(ev):
-    """The positions the pair list was built and its sub-lists filtered at."""
-    return ev.neighbors.reference, ev.neighbors.fine_reference
-
-
-def _radii(ev):
-    """How far from them (:func:`_references`) they hold."""
-    return 0.5 * ev.neighbors.skin, ev.neighbors.fine_radius
+def _validity(ev):
+    """Where the pair list and its sub-lists hold: (the positions the list
+    was built at, how far from them, the positions the sub-lists were
+    filtered at, how far from those)."""
+    nbl = ev.neighbors
+    return nbl.reference, 0.5 * nbl.skin, nbl.fine_reference, nbl.fine_radius
 
 
 def _solver_settings(dyn, stage, h):
@@ -608,7 +609,7 @@ def collective_step(dyn, h, stage):
                                        st.Wnext, scale, dyn.tol,
                                        collective.first_tolerance(dyn.tol, st.settle[stage]),
                                        64.0 * dyn.tol, max_iter, st.theta[stage], lattice_data,
-                                       data_q, data_t, _references(ev), _radii(ev),
+                                       data_q, data_t, *_validity(ev),
                                        dyn._settled_tol(), dyn._settled_qtol(0.0), memory,
                                        local, switch, chebyshev, predict, coef, hs, n_history,
                                        st.probe, field, merge, st.settled_round[stage])
@@ -749,7 +750,7 @@ def collective_block(dyn, steps):
                             64.0 * dyn.tol, max_iter, theta, settle, memory, local, switch,
                             chebyshev, orders, ring, counts, heads, st.probe, lattice_data,
                             data_q,
-                            data_t, _references(ev), _radii(ev),
+                            data_t, *_validity(ev),
                             dyn._settled_tol(), dyn._settled_qtol(0.0),
                             kernels._COEFFICIENTS, merge, rounds)
     if done:
