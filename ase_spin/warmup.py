@@ -55,11 +55,29 @@ BUILTIN = [
 ]
 
 
+def _exercise_lists(atoms):
+    """The pair lists' later life, which four steps do not reach: sub-lists
+    filtered again, and checked against two sets of positions
+    (:class:`~ase_spin.neighbors.NeighborCache`)."""
+    from .neighbors import NeighborCache
+
+    cache = NeighborCache(4.7, 0.3)
+    cell, pbc = atoms.cell.array, atoms.pbc
+    cache.update(atoms.positions, cell, pbc)
+    cache.sublist(4.0, half=True)
+    moved = atoms.positions + [0.1, 0.0, 0.0]
+    for _ in range(2):
+        cache.update(moved, cell, pbc, also=atoms.positions)
+        cache.sublist(4.0, half=True)
+
+
 def _exercise(atoms, dyn):
     atoms.get_potential_energy()
     atoms.get_forces()
     atoms.get_stress()
     atoms.calc.get_magnetic_forces(atoms)
+    if dyn is None:
+        _exercise_lists(atoms)
     if dyn is not None:
         # the fused step of small systems too: without a warm-up it is compiled
         # only for runs long enough to repay it (md/fused.py)

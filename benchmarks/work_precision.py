@@ -77,11 +77,12 @@ def warm_up_list_updates(make, kind, options, dt, integrator_kw):
     they need (the list kernels, the single compiled step that follows a
     filtering) is ~60 ms of loading from numba's cache, not a cost of the
     method; the four warm-up steps load the rest. Here a skin of 0.002 Å
-    makes them happen within 40 steps."""
+    makes them happen within 40 steps of 0.1 fs (at most the method's own
+    step: an atom may move half the skin in one)."""
     atoms = make()
     atoms.calc = ase_spin.SpinLatticeCalculator(atoms.calc.hamiltonian.terms, skin=0.002)
     cls = CollectivePRK if kind == "prk" else SuzukiTrotter
-    cls(atoms, dt, **integrator_kw, **options).run(40)
+    cls(atoms, min(dt, 0.1 * units.fs), **integrator_kw, **options).run(40)
 
 
 def rms(a, b):
