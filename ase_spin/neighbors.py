@@ -98,25 +98,10 @@ def max_displacement(positions, reference):
 
 
 @nb.njit(cache=True)
-def largest_displacement(positions, reference):
-    """max_a |r_a − r_ref,a|, NaN if any is NaN: :func:`max_displacement`
-    without the atom, a max without branches (half its time)."""
-    worst = 0.0
-    bad = False
-    for a in range(positions.shape[0]):
-        dx = positions[a, 0] - reference[a, 0]
-        dy = positions[a, 1] - reference[a, 1]
-        dz = positions[a, 2] - reference[a, 2]
-        d2 = dx * dx + dy * dy + dz * dz
-        bad |= d2 != d2
-        worst = max(worst, d2)
-    return np.nan if bad else np.sqrt(worst)
-
-
-@nb.njit(cache=True)
 def largest_displacements(positions, a_reference, b_reference):
-    """(:func:`largest_displacement` from ``a_reference``, from ``b_reference``)
-    in one pass over ``positions``."""
+    """(max_a |r_a − r_a of ``a_reference``|, the same from ``b_reference``)
+    in one pass over ``positions``, NaN if any is NaN: :func:`max_displacement`
+    without the atom, maxima without branches (half its time per reference)."""
     worst_a = worst_b = 0.0
     bad = False
     for a in range(positions.shape[0]):
@@ -801,7 +786,7 @@ class NeighborCache:
         self._reference = None
         self._fine_reference = None
         self._margin = 0.0  # what the sub-lists' reach adds for `also`
-        self._radii = {}  # each filtered sub-list's: see fine_radius
+        self._radii = {}  # per filtered sub-list (key as _sublists): see fine_radius
         self._cell = None
         self._pbc = None
         self._sublists = {}
@@ -838,9 +823,7 @@ class NeighborCache:
         it left none out, as on a perfect lattice whose next shell lies beyond
         the list); with none, ``fine_skin / 2`` (where the filtering positions
         move on, so that a sub-list made later holds where the atoms are)."""
-        radii = [self._radii[key] for key, sub in self._sublists.items()
-                 if sub is not self.half and key in self._radii]
-        return min(radii) if radii else 0.5 * self.fine_skin
+        return min(self._radii.values(), default=0.5 * self.fine_skin)
 
     @property
     def fine_reference(self):
@@ -861,31 +844,28 @@ class NeighborCache:
                 or cell.tobytes() != self._cell_key or pbc.tobytes() != self._pbc_key):
             return self._build(positions, cell, pbc, also)
         # NaN positions: no rebuild, as before (the integrators report them)
-        if self._fine_reference is self._reference:
-            moved = moved_since_build = largest_displacement(positions, self._reference)
-        else:
-            moved_since_build, moved = largest_displacements(positions, self._reference,
-                                                             self._fine_reference)
+        moved_since_build, moved = largest_displacements(positions, self._reference,
+                                                         self._fine_reference)
         if moved_since_build > 0.5 * self.skin:
             return self._build(positions, cell, pbc, also)
         if not moved > self.fine_radius:
             return False
         # filter the sub-lists again here (lazily: on their next request)
-        fine = [k for k, sub in self._sublists.items() if sub is not self.half]
-        for key in fine:
+        dropped = bool(self._radii)
+        for key in self._radii:
             del self._sublists[key]
         self._radii = {}
         self._fine_reference = positions.copy()
         self._margin = self._also_margin(positions, also)
-        self.refilters += bool(fine)
-        return bool(fine)
+        self.refilters += dropped
+        return dropped
 
     @staticmethod
     def _also_margin(positions, also):
         if also is None:
             return 0.0
         also = np.ascontiguousarray(also, dtype=float)
-        return 2.0 * largest_displacement(also, positions)
+        return 2.0 * largest_displacements(also, positions, positions)[0]
 
     def _build(self, positions, cell, pbc, also):
         cell, pbc = check_cell(cell, pbc)
@@ -958,6 +938,7 @@ class NeighborCache:
         if cached is not None:
             return cached
         master = self.half
+        radius = None
         if cutoff >= self.cutoff and mask is None:
             row, j, image = master.row, master.j, master.image
         else:
@@ -971,7 +952,7 @@ class NeighborCache:
                           master.images, reach, m, row, nearest)
             # it holds until a pair left out can come within the cutoff
             # (nothing left out: as long as the list itself)
-            self._radii[key] = 0.5 * (nearest.min(initial=np.inf) - cutoff)
+            radius = 0.5 * (nearest.min(initial=np.inf) - cutoff)
             np.cumsum(row, out=row)
             j = np.empty(row[-1], dtype=master.j.dtype)
             image = np.empty(row[-1], dtype=master.image.dtype)
@@ -985,4 +966,6 @@ class NeighborCache:
             row, j, image = _expand(row, j, image, len(master.images))
             sub = PairList(row, j, image, master.images, float(cutoff), False)
         self._sublists[key] = sub
+        if radius is not None:
+            self._radii[key] = radius
         return sub
