@@ -150,8 +150,7 @@ def test_a_rebuild_inside_a_collective_step_changes_nothing():
     assert finals[0].tobytes() == finals[1].tobytes()
 
 
-@pytest.mark.parametrize("integrator, skin", [("CollectivePRK", 0.1), ("Langevin", 0.1),
-                                              ("CollectivePRK", 0.03)])
+@pytest.mark.parametrize("integrator, skin", [("Langevin", 0.1), ("CollectivePRK", 0.03)])
 def test_a_run_does_not_depend_on_the_fine_skin(integrator, skin, monkeypatch):
     """Sub-lists filtered at the fine skin (half the skin, filtered again every
     few steps here: a 0.1 Å skin at 600 K and 1 fs, the exchange cutoff through
