@@ -563,11 +563,12 @@ def _solver_settings(dyn, stage, h):
     collective = _collective or _import_collective()
     solver, max_iter, switch, chebyshev = dyn._solver, dyn.max_iter, np.inf, False
     if solver == "auto":
-        solver = dyn._state.modes.get((stage, h), "jacobi")
-        if solver == "jacobi":
+        cheap = dyn._cheap_solver()
+        solver = dyn._state.modes.get((stage, h), cheap)
+        if solver == cheap:
             max_iter = min(max_iter, collective._AUTO_JACOBI_SWEEPS)
             switch = collective._AUTO_SWITCH
-            chebyshev = True
+            chebyshev = solver == "jacobi"
     memory, local = collective.SOLVERS[solver]
     return memory, local, max_iter, switch, chebyshev
 

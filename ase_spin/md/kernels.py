@@ -141,25 +141,30 @@ def local_midpoint(px, py, pz, bx, by, bz, c):
 
 
 @nb.njit(cache=True, inline="always")
-def _local_midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out):
+def _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out,
+                              jacobi_rows):
     """One spin's locally exact update: W_i solved exactly for the field B̄_i =
     (bx, by, bz) of the current iterate (:func:`local_midpoint`, for the spin
-    p = s_i + carry), the next iterate; the end point from it as in
-    :func:`_midpoint_update` (:func:`_reflect`). Where the local equation has no
-    root, the Jacobi update. Returns max |ΔW_i| over components, or 4 (more
-    than any change of unit vectors: "not converged") where c_i|B̄_i| >
+    p = s_i + carry), the next iterate. Its end point is left to
+    :func:`_end_points` after the last sweep: it depends on that sweep's W_i
+    and B̄_i only, and costs as much as the root, so it is made once a solve,
+    not once a sweep. Where the local equation has no root, the Jacobi update
+    of :func:`_midpoint_update`, end point included, the row marked in
+    ``jacobi_rows``. Returns max |ΔW_i| over components, or 4 (more than any
+    change of unit vectors: "not converged") where c_i|B̄_i| >
     :data:`MAX_TURN` |s_i|."""
     px = s[i, 0] + carry[i, 0]
     py = s[i, 1] + carry[i, 1]
     pz = s[i, 2] + carry[i, 2]
     c = scale[i]
+    jacobi_rows[i] = False
     if c * c * (bx * bx + by * by + bz * bz) > MAX_TURN * MAX_TURN * (px * px + py * py
                                                                       + pz * pz):
         return 4.0  # refused: reported as not converged (see MAX_TURN)
     wx, wy, wz, found = local_midpoint(px, py, pz, bx, by, bz, c)
     if not found:
+        jacobi_rows[i] = True
         return _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out)
-    _reflect(i, s, wx, wy, wz, bx, by, bz, scale, stilde, carry, carry_out)
     ox = cur[i, 0]
     oy = cur[i, 1]
     oz = cur[i, 2]
@@ -167,6 +172,21 @@ def _local_midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, car
     nxt[i, 1] = wy
     nxt[i, 2] = wz
     return max(abs(wx - ox), abs(wy - oy), abs(wz - oz))
+
+
+@nb.njit(cache=True, inline="always")
+def _end_points(lo, hi, s, W, B, scale, stilde, carry, carry_out, jacobi_rows):
+    """End points of rows lo … hi − 1 after locally exact sweeps
+    (:func:`_local_midpoint_direction`): s̃_i the reflection of s_i about
+    2 s_i + c_i W_i × B̄_i (:func:`_reflect`) for the last sweep's result W_i
+    and its field B̄_i (of the iterate before it), as an update computing it
+    every sweep would have left it. Rows without spin, and those the Jacobi
+    update took (``jacobi_rows``: it wrote their end points), are skipped."""
+    for i in range(lo, hi):
+        if jacobi_rows[i] or (s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0):
+            continue
+        _reflect(i, s, W[i, 0], W[i, 1], W[i, 2], B[i, 0], B[i, 1], B[i, 2], scale, stilde,
+                 carry, carry_out)
 
 
 @nb.njit(cache=True, inline="always")
@@ -444,6 +464,9 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     gprev = np.empty((n if memory > 0 else 0, 3))
     gram = np.zeros((memory, memory))
     extra = np.empty((n if accel > 0.0 and memory == 0 else 0, 3))
+    # locally exact sweeps: their fields, for the end points after the last one
+    sweep_field = np.empty((n if local and field is None else 0, 3))
+    jacobi_rows = np.zeros(n if local else 0, dtype=np.bool_)
     cur = W
     nxt = Wnext
     prev = extra
@@ -457,6 +480,8 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     measured = -1.0
     delta = 0.0
     first = 0.0
+    status = -1
+    it = 0
     for it in range(1, max_iter + 1):
         mixing = accelerating and it >= 2
         if mixing:
@@ -479,9 +504,13 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
                     field[i, 0] = bx
                     field[i, 1] = by
                     field[i, 2] = bz
+                elif local:
+                    sweep_field[i, 0] = bx
+                    sweep_field[i, 1] = by
+                    sweep_field[i, 2] = bz
                 if local:
-                    d = _local_midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
-                                               carry_out)
+                    d = _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde,
+                                                  carry, carry_out, jacobi_rows)
                 else:
                     d = _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
                                          carry_out)
@@ -494,7 +523,7 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
         status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
                                                       first, tol, floor, measure_until)
         if status >= 0:
-            return it, delta, status, _result_buffer(nxt, lab_nxt, Wnext), measured, first
+            break
         previous = delta
         if memory > 0:
             anderson_mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
@@ -502,8 +531,19 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
             (cur, nxt, prev, lab_cur, lab_nxt, lab_prev,
              accelerating) = _next_buffers(it, delta, first, accelerating, cur, nxt, prev,
                                            lab_cur, lab_nxt, lab_prev)
-    return (max_iter, delta, NOT_CONVERGED, _result_buffer(nxt, lab_nxt, Wnext), measured,
-            first)
+    if local:
+        if field is not None:
+            for t in nb.prange(nthreads):
+                _end_points(bounds[t], bounds[t + 1], s, nxt, field, scale, stilde, carry,
+                            carry_out, jacobi_rows)
+        else:
+            for t in nb.prange(nthreads):
+                _end_points(bounds[t], bounds[t + 1], s, nxt, sweep_field, scale, stilde,
+                            carry, carry_out, jacobi_rows)
+    if status < 0:
+        return (max_iter, delta, NOT_CONVERGED, _result_buffer(nxt, lab_nxt, Wnext),
+                measured, first)
+    return it, delta, status, _result_buffer(nxt, lab_nxt, Wnext), measured, first
 
 
 @threaded(anderson_mix=lambda: anderson_mix_serial)
@@ -526,6 +566,9 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
     gprev = np.empty((n if memory > 0 else 0, 3))
     gram = np.zeros((memory, memory))
     extra = np.empty((n if accel > 0.0 and memory == 0 else 0, 3))
+    # locally exact sweeps: their fields, for the end points after the last one
+    sweep_field = np.empty((n if local and field is None else 0, 3))
+    jacobi_rows = np.zeros(n if local else 0, dtype=np.bool_)
     cur = W
     nxt = Wnext
     prev = extra
@@ -539,6 +582,8 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
     measured = -1.0
     delta = 0.0
     first = 0.0
+    status = -1
+    it = 0
     for it in range(1, max_iter + 1):
         mixing = accelerating and it >= 2
         if mixing:
@@ -582,9 +627,13 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
                     field[i, 0] = bx
                     field[i, 1] = by
                     field[i, 2] = bz
+                elif local:
+                    sweep_field[i, 0] = bx
+                    sweep_field[i, 1] = by
+                    sweep_field[i, 2] = bz
                 if local:
-                    d = _local_midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
-                                               carry_out)
+                    d = _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde,
+                                                  carry, carry_out, jacobi_rows)
                 else:
                     d = _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
                                          carry_out)
@@ -597,7 +646,7 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
         status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
                                                       first, tol, floor, measure_until)
         if status >= 0:
-            return it, delta, status, _result_buffer(nxt, lab_nxt, Wnext), measured, first
+            break
         previous = delta
         if memory > 0:
             anderson_mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
@@ -605,16 +654,29 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
             (cur, nxt, prev, lab_cur, lab_nxt, lab_prev,
              accelerating) = _next_buffers(it, delta, first, accelerating, cur, nxt, prev,
                                            lab_cur, lab_nxt, lab_prev)
-    return (max_iter, delta, NOT_CONVERGED, _result_buffer(nxt, lab_nxt, Wnext), measured,
-            first)
+    if local:
+        if field is not None:
+            for t in nb.prange(nthreads):
+                _end_points(atoms[t], atoms[t + 1], s, nxt, field, scale, stilde, carry,
+                            carry_out, jacobi_rows)
+        else:
+            for t in nb.prange(nthreads):
+                _end_points(atoms[t], atoms[t + 1], s, nxt, sweep_field, scale, stilde,
+                            carry, carry_out, jacobi_rows)
+    if status < 0:
+        return (max_iter, delta, NOT_CONVERGED, _result_buffer(nxt, lab_nxt, Wnext),
+                measured, first)
+    return it, delta, status, _result_buffer(nxt, lab_nxt, Wnext), measured, first
 
 
 @threaded()
 def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, local, prev,
-                    omega):
+                    omega, jacobi_rows):
     """One sweep of the midpoint iteration for given midpoint fields B̄ = ``B``
     (the sum of every spin operator's field at W): the locally exact update of
-    :func:`_local_midpoint_update` (``local``) or the Jacobi update of
+    :func:`_local_midpoint_direction` (``local``; the end points are left to
+    :func:`end_points` after the last sweep, the rows it leaves to the Jacobi
+    update marked in ``jacobi_rows``) or the Jacobi update of
     :func:`_midpoint_update` for every magnetic spin (rows with s_i = 0 are
     skipped), W → ``Wnext``; with ``omega`` > 0 the accelerated iterate too,
     over ``prev`` (:func:`_mix_row`). Returns max |ΔW| over all components."""
@@ -626,8 +688,8 @@ def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, l
             if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
                 continue
             if local:
-                d = _local_midpoint_update(i, s, W, Wnext, B[i, 0], B[i, 1], B[i, 2], scale,
-                                           stilde, carry, carry_out)
+                d = _local_midpoint_direction(i, s, W, Wnext, B[i, 0], B[i, 1], B[i, 2], scale,
+                                              stilde, carry, carry_out, jacobi_rows)
             else:
                 d = _midpoint_update(i, s, W, Wnext, B[i, 0], B[i, 1], B[i, 2], scale, stilde,
                                      carry, carry_out)
@@ -637,6 +699,16 @@ def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, l
                 m = d
         change[t] = m
     return change.max()
+
+
+@threaded()
+def end_points(nthreads, s, W, B, scale, stilde, carry, carry_out, jacobi_rows):
+    """The end points after the last of :func:`midpoint_update`'s locally exact
+    sweeps (:func:`_end_points`: W its result, B its fields)."""
+    n = s.shape[0]
+    for t in nb.prange(nthreads):
+        _end_points((n * t) // nthreads, (n * (t + 1)) // nthreads, s, W, B, scale, stilde,
+                    carry, carry_out, jacobi_rows)
 
 
 @threaded(reduce_threads=lambda: reduce_threads_serial)
@@ -729,6 +801,7 @@ def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, 
     gprev = np.empty_like(fprev)
     gram = np.zeros((memory, memory))
     extra = np.empty((n if accel > 0.0 and memory == 0 else 0, 3))
+    jacobi_rows = np.zeros(n if local else 0, dtype=np.bool_)
     cur, nxt, prev = W, Wnext, extra
     lab_cur, lab_nxt, lab_prev = 0, 1, 2  # as in midpoint_solve
     omega = 1.0
@@ -746,10 +819,12 @@ def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, 
         for op in operators:
             op.field(cur, B, mean)
         delta = midpoint_update(nthreads, s, cur, nxt, B, scale, stilde, carry, carry_out,
-                                local, prev, omega if mixing else 0.0)
+                                local, prev, omega if mixing else 0.0, jacobi_rows)
         status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
                                                      first, tol, floor, measure_until)
         if status >= 0:
+            if local:
+                end_points(nthreads, s, nxt, B, scale, stilde, carry, carry_out, jacobi_rows)
             return it, delta, status, _result_buffer(nxt, lab_nxt, Wnext), measured, first
         previous = delta
         if memory > 0:
@@ -758,6 +833,8 @@ def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, 
             (cur, nxt, prev, lab_cur, lab_nxt, lab_prev,
              accelerating) = _next_buffers(it, delta, first, accelerating, cur, nxt, prev,
                                            lab_cur, lab_nxt, lab_prev)
+    if local:
+        end_points(nthreads, s, nxt, B, scale, stilde, carry, carry_out, jacobi_rows)
     return max_iter, delta, NOT_CONVERGED, _result_buffer(nxt, lab_nxt, Wnext), measured, first
 
 
