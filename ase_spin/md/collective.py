@@ -30,9 +30,10 @@ TOL_RANGE = (1e-16, 1e-3)
 
 #: The midpoint solvers: (Anderson memory, locally exact sweep).
 SOLVERS = {"anderson": (kernels.MEMORY, True), "local": (0, True), "jacobi": (0, False)}
-# "auto": Jacobi sweeps (the cheapest) while their observed contraction per sweep
-# stays below _AUTO_SWITCH, else the Anderson solver from then on at that stage and
-# step size; a Jacobi solve not done in _AUTO_JACOBI_SWEEPS is redone by it.
+# "auto": the cheap sweeps (Jacobi, or locally exact ones: _cheap_solver) while their
+# observed contraction per sweep stays below _AUTO_SWITCH, else the Anderson solver
+# from then on at that stage and step size; a cheap solve not done in
+# _AUTO_JACOBI_SWEEPS sweeps is redone by it.
 _AUTO_SWITCH = 0.4
 _AUTO_JACOBI_SWEEPS = 40
 # Contraction per sweep above which "auto" keeps a copy of the starting guess for
@@ -144,7 +145,9 @@ class CollectivePRK(SpinLatticeDynamics):
         the step. "auto" (the default): Jacobi while it contracts by less
         than 0.4 per sweep (Chebyshev-accelerated from 0.1:
         :func:`~ase_spin.md.kernels.chebyshev_weight`), else "anderson" (at
-        that stage and step size), a failed Jacobi solve redone by it.
+        that stage and step size), a failed Jacobi solve redone by it
+        (:class:`~ase_spin.Langevin` with a bath at T > 0: locally exact
+        sweeps in Jacobi's place).
     lattice : "moving" or "frozen"
         ``"frozen"`` integrates the spins only (as does fixing every atom with
         ``FixAtoms``); pair geometry is then computed once.

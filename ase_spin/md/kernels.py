@@ -428,7 +428,8 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     ``local`` (the default), every spin's own equation solved exactly in the
     field of the others, B̄_i(W) held fixed (:func:`local_midpoint`, a Cayley
     rotation about B̄_i; contracts for every step size where the plain
-    iteration may not); else the Jacobi map g(W) = (2 s + c W × B̄(W)) /
+    iteration may not; the end points made once, after the last sweep, from
+    its fields: :func:`_end_points`); else the Jacobi map g(W) = (2 s + c W × B̄(W)) /
     |2 s + c W × B̄(W)|, which contracts only while c|B̄| ≲ 1. With ``memory``
     m > 0, the next iterate is the Anderson combination of the last m + 1
     sweeps (:func:`anderson_mix`); else, with ``accel`` = θ̂ > 0, the Chebyshev
