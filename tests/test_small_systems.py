@@ -542,8 +542,8 @@ def test_an_interrupt_anywhere_in_a_block_leaves_the_state_before_or_after_it():
 
 
 def test_frozen_block_leaves_the_solver_switch_to_the_general_path(monkeypatch):
-    """Frozen lattice, order 4 at 4 fs: the Jacobi sweeps of the middle stage
-    contract too slowly, the block stops before that step, the general path
+    """Frozen lattice, order 4 at 4 fs: the locally exact sweeps of the middle
+    stage contract too slowly, the block stops before that step, the general path
     switches the stage to Anderson (solver="auto"), and the blocks after it
     solve that stage with Anderson too: bit for bit the general path's run."""
     used = _spy_fused(monkeypatch)
@@ -561,17 +561,17 @@ def test_frozen_block_leaves_the_solver_switch_to_the_general_path(monkeypatch):
     assert np.array_equal(runs[0][0], runs[1][0]) and runs[0][1] == runs[1][1]
 
 
-@pytest.mark.parametrize("order", [2, 4])
-def test_a_block_stopping_mid_way_hands_that_step_to_the_general_path(order, monkeypatch):
-    """Frozen lattice at 0.5 fs. Order 2: Jacobi capped at 9 sweeps after 15
-    steps (most steps take 9, a few 10); order 4: the "auto" switch to
-    Anderson lowered to 0.1128, which the middle stage's contraction
-    (0.093–0.113 here) crosses now and then, the outer stages' (≤ 0.07)
-    never. A block takes some steps, stops before
-    the first step it cannot take (at order 4 in its third stage: the state
-    put back to the last whole step), the general path takes that step
-    (switching the stage to Anderson), and blocks go on: bit for bit the
-    general path's run."""
+@pytest.mark.parametrize("order, switch_at", [(2, 0.1035), (4, 0.0655)])
+def test_a_block_stopping_mid_way_hands_that_step_to_the_general_path(order, switch_at,
+                                                                      monkeypatch):
+    """Frozen lattice at 0.5 fs, the "auto" switch to Anderson lowered to
+    ``switch_at``, which a stage's contraction crosses for the first time in
+    the 14th (order 2: 0.074–0.106 here) or 15th step (order 4: the middle
+    stage's 0.032–0.069; the outer stages' ≤ 0.031 never). A block takes some
+    steps, stops before the first step it cannot take (at order 4 in its third
+    stage: the state put back to the last whole step), the general path takes
+    that step (switching the stage to Anderson), and blocks go on: bit for bit
+    the general path's run."""
     from ase_spin.md import collective
 
     calls = _spy_runners(monkeypatch, "_frozen_runner")
@@ -583,10 +583,7 @@ def test_a_block_stopping_mid_way_hands_that_step_to_the_general_path(order, mon
         atoms = fcc_cobalt(3)
         dyn = CollectivePRK(atoms, 0.5 * units.fs, order=order, lattice="frozen")
         dyn.run(15)
-        if order == 2:
-            dyn.max_iter = 9
-        else:
-            monkeypatch.setattr(collective, "_AUTO_SWITCH", 0.1128)
+        monkeypatch.setattr(collective, "_AUTO_SWITCH", switch_at)
         dyn.run(40)
         monkeypatch.setattr(collective, "_AUTO_SWITCH", switch)
         runs.append((get_spins(atoms), dyn.total_iterations, dict(dyn._state.modes)))

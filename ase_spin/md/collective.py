@@ -30,14 +30,19 @@ TOL_RANGE = (1e-16, 1e-3)
 
 #: The midpoint solvers: (Anderson memory, locally exact sweep).
 SOLVERS = {"anderson": (kernels.MEMORY, True), "local": (0, True), "jacobi": (0, False)}
-# "auto": the cheap sweeps (Jacobi, or locally exact ones: _cheap_solver) while their
-# observed contraction per sweep stays below _AUTO_SWITCH, else the Anderson solver
-# from then on at that stage and step size; a cheap solve not done in
-# _AUTO_JACOBI_SWEEPS sweeps is redone by it.
+# "auto": locally exact sweeps (_AUTO_FIRST) while their observed contraction per
+# sweep stays below _AUTO_SWITCH, else the Anderson solver from then on at that
+# stage and step size; a solve of _AUTO_FIRST not done in _AUTO_FIRST_SWEEPS sweeps
+# is redone by it. Locally exact sweeps, not Jacobi ones, although a Jacobi sweep
+# costs ~4 % less: where the predictor leaves one or two sweeps to make (fcc Co at
+# 0.1–0.15 fs) both cost the same, and from 0.25 fs on, or on a frozen lattice,
+# the locally exact sweeps' faster contraction (each spin's own precession solved
+# exactly) saves 7–25 % of a run (docs/benchmarks.md, the midpoint solver).
+_AUTO_FIRST = "local"
 _AUTO_SWITCH = 0.4
-_AUTO_JACOBI_SWEEPS = 40
+_AUTO_FIRST_SWEEPS = 40
 # Contraction per sweep above which "auto" keeps a copy of the starting guess for
-# the retry (below it, 40 Jacobi sweeps gain over 27 decades: they do not fail)
+# the retry (below it, 40 sweeps gain over 27 decades: they do not fail)
 _KEEP_GUESS = 0.2
 #: The first midpoint solve of a (sub)step is converged to this fraction of how far
 #: the update of q̃ moved W in the last step (see first_tolerance).
@@ -142,12 +147,9 @@ class CollectivePRK(SpinLatticeDynamics):
         contracting at any step size in the linear analysis. "anderson": the
         local sweep with Anderson acceleration (memory 3): fewest sweeps at
         every step size, converges until the lattice, not the spins, limits
-        the step. "auto" (the default): Jacobi while it contracts by less
-        than 0.4 per sweep (Chebyshev-accelerated from 0.1:
-        :func:`~ase_spin.md.kernels.chebyshev_weight`), else "anderson" (at
-        that stage and step size), a failed Jacobi solve redone by it
-        (:class:`~ase_spin.Langevin` with a bath at T > 0: locally exact
-        sweeps in Jacobi's place).
+        the step. "auto" (the default): "local" while it contracts by less
+        than 0.4 per sweep, else "anderson" (at that stage and step size), a
+        failed "local" solve redone by it.
     lattice : "moving" or "frozen"
         ``"frozen"`` integrates the spins only (as does fixing every atom with
         ``FixAtoms``); pair geometry is then computed once.
@@ -417,7 +419,7 @@ class CollectivePRK(SpinLatticeDynamics):
         carry = np.zeros_like(s)
         stilde = np.zeros_like(s)
         solver = self._solver
-        cheap = self._cheap_solver()
+        cheap = _AUTO_FIRST
         if solver == "auto":
             solver = st.modes.get((stage, h), cheap)
         if solver == cheap and self._solver == "auto":
@@ -427,7 +429,7 @@ class CollectivePRK(SpinLatticeDynamics):
             guess = W.copy() if st.theta[stage] > _KEEP_GUESS else None
             its, delta, status, which, theta, moved = self._run_solver(
                 s, operators, W, h, stage, mean, scale, stilde, carry, tol, cheap,
-                min(self.max_iter, _AUTO_JACOBI_SWEEPS))
+                min(self.max_iter, _AUTO_FIRST_SWEEPS))
             if status != kernels.NOT_CONVERGED and not (its > 2 and theta > _AUTO_SWITCH):
                 st.theta[stage] = theta if 0.0 <= theta < 1.0 else st.theta[stage]
                 if which == 1:
@@ -456,13 +458,6 @@ class CollectivePRK(SpinLatticeDynamics):
             self._raise_not_converged(operators, W, its, delta, scale, mean)
         return W, stilde, its, moved, carry
 
-    def _cheap_solver(self):
-        """The sweeps ``solver="auto"`` starts with at every stage and step size
-        (until they contract by more than :data:`_AUTO_SWITCH` per sweep):
-        Jacobi, the cheapest per sweep, whose contraction (θ ≈ 0.03 per sweep on
-        fcc Co at 0.1 fs) the predictor's accuracy makes enough."""
-        return "jacobi"
-
     def _midpoint_field_buffer(self):
         """An (n, 3) buffer for a solve's midpoint fields (made once, zero: the
         rows without spin, which no solve writes, stay 0)."""
@@ -484,9 +479,6 @@ class CollectivePRK(SpinLatticeDynamics):
         """One call of the midpoint kernels with solver ``solver`` (see :meth:`_solve`)."""
         st = self._state
         memory, local = SOLVERS[solver]
-        # "auto": its Jacobi sweeps accelerated where they contract slowly
-        accel = kernels.chebyshev_bound(st.theta[stage],
-                                        solver == "jacobi" and self._solver == "auto")
         args = (s, W, st.Wnext, stilde, scale, tol, 64.0 * self.tol, max_iter,
                 min(1.0, 2.0 * st.theta[stage]), st.carry_s, carry)
         if len(operators) == 1 and hasattr(operators[0], "linear_pairs"):
@@ -494,11 +486,11 @@ class CollectivePRK(SpinLatticeDynamics):
             pairs, c = operators[0].linear_pairs(mean)
             solve = kernels.midpoint_solve_half if pairs.half else kernels.midpoint_solve
             if st.field_out is None:
-                return solve(threads.count(), pairs.row, pairs.j, c, *args, memory, local, accel)
+                return solve(threads.count(), pairs.row, pairs.j, c, *args, memory, local)
             st.field_filled = True
-            return solve(threads.count(), pairs.row, pairs.j, c, *args, memory, local, accel,
+            return solve(threads.count(), pairs.row, pairs.j, c, *args, memory, local,
                          st.field_out)
-        return kernels.midpoint_solve_operators(operators, *args, mean, memory, local, accel)
+        return kernels.midpoint_solve_operators(operators, *args, mean, memory, local)
 
     def _raise_not_converged(self, operators, W, its, delta, scale, mean):
         B = np.zeros_like(W)

@@ -44,7 +44,7 @@ _DONE, _GIVE_UP = 0, 1
 def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, scale, tol,
           first_tol, floor, max_iter, theta, lattice, op_q, op_t, reference, radius,
           fine_reference, fine_radius, settled_tol, qtol_floor, memory, local, switch,
-          chebyshev, predict, coef, hs, n_history, probe, field, merge, settled_round):
+          predict, coef, hs, n_history, probe, field, merge, settled_round):
     """The skeleton of the fused step (compiled with ``lattice_forces``,
     ``spin_forces``, ``spin_geometry`` and ``spin_couplings`` bound to the
     terms' pieces): CollectivePRK._coupled_step for one spin operator on a
@@ -60,8 +60,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     ``first_tol``, the others at ``tol`` (collective.first_tolerance).
     ``memory``, ``local``: the midpoint solver (kernels.midpoint_solve_half);
     a solve contracting by more than ``switch`` per sweep also gives up, so
-    that CollectivePRK's ``solver="auto"`` makes its switch on the general path;
-    ``chebyshev``: its Jacobi sweeps accelerated as there (kernels.chebyshev_bound).
+    that CollectivePRK's ``solver="auto"`` makes its switch on the general path.
     With ``predict``, W is not read but predicted here as CollectivePRK._predict
     does (normalise(s + Σ c_m D_m), coefficients ``coef`` over the increments
     ``hs``, newest first, padded), and the returned order is the one that would
@@ -135,8 +134,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
         use_tol = first_tol if solves == 0 else tol
         its, delta, status, which, measured, moved_w = solve_half(  # noqa: F821
             1, row, nbr, c, s, W, Wnext, stilde, scale, use_tol, floor, max_iter,
-            min(1.0, 2.0 * theta), carry_s, carry, memory, local,
-            kernels.chebyshev_bound(theta, chebyshev), field)
+            min(1.0, 2.0 * theta), carry_s, carry, memory, local, field)
         if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch):
             return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
                         settled_round)
@@ -202,7 +200,7 @@ def _history(ring, stage, head, count):
 
 def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, carry_mid,
          Wnext, tol, fraction, floor, max_iter, theta, settle, memory, local, switch,
-         chebyshev, orders, ring, counts, heads, probe, lattice, op_q, op_t, reference,
+         orders, ring, counts, heads, probe, lattice, op_q, op_t, reference,
          radius, fine_reference, fine_radius, settled_tol, qtol_floor, coefficients, merge,
          rounds):
     """Up to ``steps`` whole steps (every stage γ_k h of the composition) of the
@@ -251,7 +249,7 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
                 hs[0], Wnext, scales[stage], tol, first_tol, floor, max_iter[stage],
                 theta[stage], lattice, oq, ot, reference, radius, fine_reference, fine_radius,
                 settled_tol, qtol_floor,
-                memory[stage], local[stage], switch[stage], chebyshev[stage], count > 0,
+                memory[stage], local[stage], switch[stage], count > 0,
                 coefficients[min(orders[stage], count - 1)], hs, count, probe, field, merge,
                 rounds[stage])
             if status != _DONE:
@@ -291,7 +289,7 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
 
 
 def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_iter, theta,
-                memory, local, switch, chebyshev, orders, ring, counts, heads, probe, row, nbr,
+                memory, local, switch, orders, ring, counts, heads, probe, row, nbr,
                 c, coefficients):
     """:func:`_run` for a frozen lattice (CollectivePRK's spins-only step,
     ``_substep`` with ``lattice="frozen"``) with one spin operator of the form
@@ -327,7 +325,7 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
             its, delta, status, which, measured, moved = solve(  # noqa: F821
                 1, row, nbr, c, s, W, Wnext, stilde, scales[stage], tol, floor,
                 max_iter[stage], min(1.0, 2.0 * theta[stage]), carry_s, carry, memory[stage],
-                local[stage], kernels.chebyshev_bound(theta[stage], chebyshev[stage]))
+                local[stage])
             if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch[stage]):
                 failed = True
                 break
@@ -556,21 +554,19 @@ def _validity(ev):
 
 def _solver_settings(dyn, stage, h):
     """(Anderson memory, locally exact sweep, sweeps allowed, contraction per
-    sweep above which to give up, whether the Jacobi sweeps are accelerated)
-    of a stage's midpoint solves, as CollectivePRK._solve chooses: with
-    ``"auto"``, accelerated Jacobi until it contracts slowly (then the general
-    path makes the switch)."""
+    sweep above which to give up) of a stage's midpoint solves, as
+    CollectivePRK._solve chooses: with ``"auto"``, its first solver until it
+    contracts slowly (then the general path makes the switch)."""
     collective = _collective or _import_collective()
-    solver, max_iter, switch, chebyshev = dyn._solver, dyn.max_iter, np.inf, False
+    solver, max_iter, switch = dyn._solver, dyn.max_iter, np.inf
     if solver == "auto":
-        cheap = dyn._cheap_solver()
-        solver = dyn._state.modes.get((stage, h), cheap)
-        if solver == cheap:
-            max_iter = min(max_iter, collective._AUTO_JACOBI_SWEEPS)
+        first = collective._AUTO_FIRST
+        solver = dyn._state.modes.get((stage, h), first)
+        if solver == first:
+            max_iter = min(max_iter, collective._AUTO_FIRST_SWEEPS)
             switch = collective._AUTO_SWITCH
-            chebyshev = solver == "jacobi"
     memory, local = collective.SOLVERS[solver]
-    return memory, local, max_iter, switch, chebyshev
+    return memory, local, max_iter, switch
 
 
 def collective_step(dyn, h, stage):
@@ -588,7 +584,7 @@ def collective_step(dyn, h, stage):
     ev = dyn.ev
     scale = dyn._scale(h)
     collective = _collective or _import_collective()
-    memory, local, max_iter, switch, chebyshev = _solver_settings(dyn, stage, h)
+    memory, local, max_iter, switch = _solver_settings(dyn, stage, h)
     # the midpoint fields, where asked for (else into the same buffer, unread:
     # one compiled specialisation of the step)
     field = st.field_out if st.field_out is not None else dyn._midpoint_field_buffer()
@@ -612,7 +608,7 @@ def collective_step(dyn, h, stage):
                                        64.0 * dyn.tol, max_iter, st.theta[stage], lattice_data,
                                        data_q, data_t, *_validity(ev),
                                        dyn._settled_tol(), dyn._settled_qtol(0.0), memory,
-                                       local, switch, chebyshev, predict, coef, hs, n_history,
+                                       local, switch, predict, coef, hs, n_history,
                                        st.probe, field, merge, st.settled_round[stage])
     if status != _DONE:
         return None
@@ -678,13 +674,12 @@ def _stage_arrays(dyn):
     local = np.empty(nstages, dtype=np.bool_)
     max_iter = np.empty(nstages, dtype=np.int64)
     switch = np.empty(nstages)
-    chebyshev = np.empty(nstages, dtype=np.bool_)
     for stage, gamma in enumerate(dyn.gammas):
         h = gamma * dyn.dt
         scales[stage] = dyn._scale(h)
-        (memory[stage], local[stage], max_iter[stage], switch[stage],
-         chebyshev[stage]) = _solver_settings(dyn, stage, h)
-    return gammas, scales, memory, local, max_iter, switch, chebyshev
+        memory[stage], local[stage], max_iter[stage], switch[stage] = _solver_settings(
+            dyn, stage, h)
+    return gammas, scales, memory, local, max_iter, switch
 
 
 def _history_ring(st):
@@ -738,7 +733,7 @@ def collective_block(dyn, steps):
         return 0, 0, 0, 0
     ev = dyn.ev
     collective = _collective or _import_collective()
-    gammas, scales, memory, local, max_iter, switch, chebyshev = _stage_arrays(dyn)
+    gammas, scales, memory, local, max_iter, switch = _stage_arrays(dyn)
     ring, counts, heads = _history_ring(st)
     theta = np.array(st.theta, dtype=float)
     settle = np.array(st.settle, dtype=float)
@@ -749,7 +744,7 @@ def collective_block(dyn, steps):
                             scales, st.carry_q, st.carry_p, st.carry_s, st.carry_mid,
                             st.Wnext, dyn.tol, collective.FIRST_SOLVE_FRACTION,
                             64.0 * dyn.tol, max_iter, theta, settle, memory, local, switch,
-                            chebyshev, orders, ring, counts, heads, st.probe, lattice_data,
+                            orders, ring, counts, heads, st.probe, lattice_data,
                             data_q,
                             data_t, *_validity(ev),
                             dyn._settled_tol(), dyn._settled_qtol(0.0),
@@ -797,13 +792,13 @@ def _frozen_block(dyn, steps):
     run = _frozen_runner(bool(pairs.half))
     if not _pays(dyn, run):
         return 0, 0, 0, 0
-    gammas, scales, memory, local, max_iter, switch, chebyshev = _stage_arrays(dyn)
+    gammas, scales, memory, local, max_iter, switch = _stage_arrays(dyn)
     ring, counts, heads = _history_ring(st)
     theta = np.array(st.theta, dtype=float)
     orders = np.array(st.predictor_order, dtype=np.int64)
     done, s, carry_s, Wnext, sweeps, last_sweeps = run(
         steps, st.s, dyn.dt, gammas, scales, st.carry_s, st.Wnext, dyn.tol, 64.0 * dyn.tol,
-        max_iter, theta, memory, local, switch, chebyshev, orders, ring, counts, heads,
+        max_iter, theta, memory, local, switch, orders, ring, counts, heads,
         st.probe, pairs.row, pairs.j, c, kernels._COEFFICIENTS)
     if done:
         st.s, st.carry_s, st.Wnext = s, carry_s, Wnext

@@ -20,10 +20,6 @@ MEMORY = 3
 #: exact update: its Cayley rotation angle 2 atan(c|B̄|/|v|) saturates at π, so such a step
 #: is no longer a step of the dynamics (fcc Co: c|B̄| ≈ 4.4 at 8 fs).
 MAX_TURN = 8.0
-#: The accelerated midpoint sweeps go back to plain ones once a sweep's change
-#: exceeds this multiple of the first sweep's (the spectrum was not the
-#: imaginary segment they assume, or its bound was too low).
-CHEBYSHEV_GROWTH = 2.0
 #: Atoms per block of the Anderson inner products: a partition fixed whatever
 #: the thread count, its partial sums added in block order, so that every bit of
 #: the result is the same for any number of threads.
@@ -190,12 +186,11 @@ def _end_points(lo, hi, s, W, B, scale, stilde, carry, carry_out, jacobi_rows):
 
 
 @nb.njit(cache=True, inline="always")
-def after_sweep(it, delta, previous, theta, measured, first, tol, floor, measure_until):
+def after_sweep(it, delta, previous, theta, measured, first, tol, floor):
     """Bookkeeping after sweep ``it`` with change ``delta`` (see :func:`midpoint_solve`):
-    (status, or -1 to go on; contraction θ in use; θ measured; change of the first sweep).
-    θ is measured from the ratio of successive changes up to sweep ``measure_until`` (the
-    accelerated sweeps' ratios are not the plain iteration's contraction)."""
-    if it > 1 and it <= measure_until and delta > 1e3 * tol and delta < previous:
+    (status, or -1 to go on; contraction θ in use; θ measured, from the ratio of
+    successive changes; change of the first sweep)."""
+    if it > 1 and delta > 1e3 * tol and delta < previous:
         theta = delta / previous
         measured = theta
     if it == 1:
@@ -337,84 +332,9 @@ def anderson_mix(it, x, g, fprev, gprev, dF, dG, gram):
 anderson_mix_serial = serial_twin(anderson_mix)
 
 
-@nb.njit(cache=True, inline="always")
-def chebyshev_weight(it, omega, theta):
-    r"""Weight ω_it of the Chebyshev semi-iteration x_{k+1} = x_{k−1} + ω_{k+1}
-    (g(x_k) − x_{k−1}) for a sweep map g whose linearisation has its spectrum on
-    the imaginary segment [−iθ, iθ] (a precession: the midpoint map of a
-    Hamiltonian spin system near a stable state):
-
-    .. math:: \omega_1 = 1, \qquad \omega_2 = \frac{1}{1 + \theta^2/2}, \qquad
-              \omega_{k+1} = \frac{1}{1 + \theta^2 \omega_k/4},
-
-    the real-segment recurrence with ρ² → −θ²: the error falls by θ/(1 + √(1+θ²))
-    per sweep instead of θ (0.27 → 0.13, 0.42 → 0.19), with no inner products.
-    ``omega``: ω_{it−1}."""
-    if it <= 1:
-        return 1.0
-    if it == 2:
-        return 1.0 / (1.0 + 0.5 * theta * theta)
-    return 1.0 / (1.0 + 0.25 * theta * theta * omega)
-
-
-#: CollectivePRK's "auto" accelerates its Jacobi sweeps where the contraction θ
-#: measured at that stage in the last solve lies in [CHEBYSHEV_FROM, 1), with the
-#: spectral bound CHEBYSHEV_MARGIN·θ (fcc Co, order 4 at 2 fs, a prototype: 24 →
-#: 17 sweeps per solve at θ = 0.27, 36 → 21 at 0.42).
-CHEBYSHEV_FROM = 0.1
-CHEBYSHEV_MARGIN = 1.2
-
-
-@nb.njit(cache=True)
-def chebyshev_bound(theta, on):
-    """The spectral bound θ̂ for the accelerated sweeps of a stage whose sweeps
-    last contracted by ``theta`` (1: not measured), or 0 (plain sweeps): with
-    ``on`` (CollectivePRK's "auto" in its Jacobi mode), from CHEBYSHEV_FROM up.
-    One function for the Python and the compiled paths: the same θ̂ to the bit."""
-    if not on or not (theta >= CHEBYSHEV_FROM and theta < 1.0):
-        return 0.0
-    return CHEBYSHEV_MARGIN * theta
-
-
-@nb.njit(cache=True, inline="always")
-def _mix_row(i, prev, g, omega):
-    """Row i of the accelerated iterate x_{k+1} = x_{k−1} + ω (g(x_k) − x_{k−1}),
-    written over x_{k−1} inside a sweep (right after g_i is written), not normalised (the sweep's map takes
-    any W: its length error, 1 − ω of the one two sweeps before, dies out
-    with the rest, and the fixed point, g(W) = W, is a unit vector)."""
-    prev[i, 0] += omega * (g[i, 0] - prev[i, 0])
-    prev[i, 1] += omega * (g[i, 1] - prev[i, 1])
-    prev[i, 2] += omega * (g[i, 2] - prev[i, 2])
-
-
-@nb.njit(cache=True, inline="always")
-def _next_buffers(it, delta, first, accelerating, cur, nxt, prev, lab_cur, lab_nxt, lab_prev):
-    """The buffers' roles for the next plain or accelerated sweep (current
-    iterate, g of it, x_{k−1}; their labels 0: W, 1: Wnext, 2: the solver's
-    own) and whether it is accelerated. Plain: x_{k+1} = g(x_k). Accelerated:
-    after the first sweep x₁ = g(x₀) with x₀ kept; then x_{k+1}, written over
-    x_{k−1} in the sweep (:func:`_mix_row`); back to plain sweeps for good once
-    a change exceeds CHEBYSHEV_GROWTH times the first."""
-    if accelerating and it == 1:
-        return nxt, prev, cur, lab_nxt, lab_prev, lab_cur, True
-    if accelerating and not delta > CHEBYSHEV_GROWTH * first:
-        return prev, nxt, cur, lab_prev, lab_nxt, lab_cur, True
-    return nxt, cur, prev, lab_nxt, lab_cur, lab_prev, False
-
-
-@nb.njit(cache=True, inline="always")
-def _result_buffer(nxt, label, Wnext):
-    """Which of the two caller's buffers holds the result (0: W, 1: Wnext): the
-    result in the solver's own third buffer is copied to Wnext."""
-    if label == 2:
-        Wnext[:] = nxt
-        return 1
-    return label
-
-
 @threaded(anderson_mix=lambda: anderson_mix_serial)
 def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
-                   theta0, carry, carry_out, memory=MEMORY, local=True, accel=0.0, field=None):
+                   theta0, carry, carry_out, memory=MEMORY, local=True, field=None):
     r"""Solve the spherical-midpoint equation for fixed pair couplings J̄_ij:
 
     .. math::
@@ -432,11 +352,7 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     its fields: :func:`_end_points`); else the Jacobi map g(W) = (2 s + c W × B̄(W)) /
     |2 s + c W × B̄(W)|, which contracts only while c|B̄| ≲ 1. With ``memory``
     m > 0, the next iterate is the Anderson combination of the last m + 1
-    sweeps (:func:`anderson_mix`); else, with ``accel`` = θ̂ > 0, the Chebyshev
-    semi-iteration of the plain sweeps for a spectrum on [−iθ̂, iθ̂]
-    (:func:`chebyshev_weight`, :func:`_mix_row`; θ̂ a bound on the plain
-    iteration's contraction, which it then measures from its first two sweeps
-    only); else g(W). Rows with s_i = 0 (non-magnetic atoms) are skipped.
+    sweeps (:func:`anderson_mix`); else g(W). Rows with s_i = 0 (non-magnetic atoms) are skipped.
 
     ``W`` holds the starting guess; ``Wnext`` is a buffer of the same shape (zero
     on non-magnetic rows). ``stilde`` receives the end point of the last sweep,
@@ -464,18 +380,12 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     fprev = np.empty((n if memory > 0 else 0, 3))
     gprev = np.empty((n if memory > 0 else 0, 3))
     gram = np.zeros((memory, memory))
-    extra = np.empty((n if accel > 0.0 and memory == 0 else 0, 3))
     # locally exact sweeps: their fields, for the end points after the last one
     sweep_field = np.empty((n if local and field is None else 0, 3))
     jacobi_rows = np.zeros(n if local else 0, dtype=np.bool_)
     cur = W
     nxt = Wnext
-    prev = extra
-    # which buffer each is: 0 = W, 1 = Wnext, 2 = extra
-    lab_cur, lab_nxt, lab_prev = 0, 1, 2
-    omega = 1.0
-    accelerating = extra.shape[0] > 0
-    measure_until = 2 if accelerating else max_iter
+    which = 1  # the buffer nxt is: 0 = W, 1 = Wnext
     previous = np.inf
     theta = theta0
     measured = -1.0
@@ -484,9 +394,6 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     status = -1
     it = 0
     for it in range(1, max_iter + 1):
-        mixing = accelerating and it >= 2
-        if mixing:
-            omega = chebyshev_weight(it, omega, accel)
         for t in nb.prange(nthreads):
             m = 0.0
             for i in range(bounds[t], bounds[t + 1]):
@@ -515,23 +422,20 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
                 else:
                     d = _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
                                          carry_out)
-                if mixing:  # the next iterate too, over x_{k−1} (used if this is not the last)
-                    _mix_row(i, prev, nxt, omega)
                 if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
                     m = d
             change[t] = m
         delta = change.max()
         status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
-                                                      first, tol, floor, measure_until)
+                                                      first, tol, floor)
         if status >= 0:
             break
         previous = delta
         if memory > 0:
             anderson_mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
         else:
-            (cur, nxt, prev, lab_cur, lab_nxt, lab_prev,
-             accelerating) = _next_buffers(it, delta, first, accelerating, cur, nxt, prev,
-                                           lab_cur, lab_nxt, lab_prev)
+            cur, nxt = nxt, cur
+            which = 1 - which
     if local:
         if field is not None:
             for t in nb.prange(nthreads):
@@ -542,15 +446,14 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
                 _end_points(bounds[t], bounds[t + 1], s, nxt, sweep_field, scale, stilde,
                             carry, carry_out, jacobi_rows)
     if status < 0:
-        return (max_iter, delta, NOT_CONVERGED, _result_buffer(nxt, lab_nxt, Wnext),
-                measured, first)
-    return it, delta, status, _result_buffer(nxt, lab_nxt, Wnext), measured, first
+        return max_iter, delta, NOT_CONVERGED, which, measured, first
+    return it, delta, status, which, measured, first
 
 
 @threaded(anderson_mix=lambda: anderson_mix_serial)
 def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor,
                         max_iter, theta0, carry, carry_out, memory=MEMORY, local=True,
-                        accel=0.0, field=None):
+                        field=None):
     """:func:`midpoint_solve` over a half pair list (each pair once, half the
     memory traffic): each sweep scatters J̄_ij W_j into row i and J̄_ij W_i into
     row j of per-thread buffers, then updates every spin from their sum."""
@@ -566,18 +469,12 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
     fprev = np.empty((n if memory > 0 else 0, 3))
     gprev = np.empty((n if memory > 0 else 0, 3))
     gram = np.zeros((memory, memory))
-    extra = np.empty((n if accel > 0.0 and memory == 0 else 0, 3))
     # locally exact sweeps: their fields, for the end points after the last one
     sweep_field = np.empty((n if local and field is None else 0, 3))
     jacobi_rows = np.zeros(n if local else 0, dtype=np.bool_)
     cur = W
     nxt = Wnext
-    prev = extra
-    # which buffer each is: 0 = W, 1 = Wnext, 2 = extra
-    lab_cur, lab_nxt, lab_prev = 0, 1, 2
-    omega = 1.0
-    accelerating = extra.shape[0] > 0
-    measure_until = 2 if accelerating else max_iter
+    which = 1  # the buffer nxt is: 0 = W, 1 = Wnext
     previous = np.inf
     theta = theta0
     measured = -1.0
@@ -586,9 +483,6 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
     status = -1
     it = 0
     for it in range(1, max_iter + 1):
-        mixing = accelerating and it >= 2
-        if mixing:
-            omega = chebyshev_weight(it, omega, accel)
         for t in nb.prange(nthreads):
             for i in range(bounds[t], bounds[t + 1]):
                 wx = cur[i, 0]
@@ -638,23 +532,20 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
                 else:
                     d = _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
                                          carry_out)
-                if mixing:  # the next iterate too, over x_{k−1} (used if this is not the last)
-                    _mix_row(i, prev, nxt, omega)
                 if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
                     m = d
             change[t] = m
         delta = change.max()
         status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
-                                                      first, tol, floor, measure_until)
+                                                      first, tol, floor)
         if status >= 0:
             break
         previous = delta
         if memory > 0:
             anderson_mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
         else:
-            (cur, nxt, prev, lab_cur, lab_nxt, lab_prev,
-             accelerating) = _next_buffers(it, delta, first, accelerating, cur, nxt, prev,
-                                           lab_cur, lab_nxt, lab_prev)
+            cur, nxt = nxt, cur
+            which = 1 - which
     if local:
         if field is not None:
             for t in nb.prange(nthreads):
@@ -665,22 +556,20 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
                 _end_points(atoms[t], atoms[t + 1], s, nxt, sweep_field, scale, stilde,
                             carry, carry_out, jacobi_rows)
     if status < 0:
-        return (max_iter, delta, NOT_CONVERGED, _result_buffer(nxt, lab_nxt, Wnext),
-                measured, first)
-    return it, delta, status, _result_buffer(nxt, lab_nxt, Wnext), measured, first
+        return max_iter, delta, NOT_CONVERGED, which, measured, first
+    return it, delta, status, which, measured, first
 
 
 @threaded()
-def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, local, prev,
-                    omega, jacobi_rows):
+def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, local,
+                    jacobi_rows):
     """One sweep of the midpoint iteration for given midpoint fields B̄ = ``B``
     (the sum of every spin operator's field at W): the locally exact update of
     :func:`_local_midpoint_direction` (``local``; the end points are left to
     :func:`end_points` after the last sweep, the rows it leaves to the Jacobi
     update marked in ``jacobi_rows``) or the Jacobi update of
     :func:`_midpoint_update` for every magnetic spin (rows with s_i = 0 are
-    skipped), W → ``Wnext``; with ``omega`` > 0 the accelerated iterate too,
-    over ``prev`` (:func:`_mix_row`). Returns max |ΔW| over all components."""
+    skipped), W → ``Wnext``. Returns max |ΔW| over all components."""
     n = s.shape[0]
     change = np.zeros(nthreads)
     for t in nb.prange(nthreads):
@@ -694,8 +583,6 @@ def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, l
             else:
                 d = _midpoint_update(i, s, W, Wnext, B[i, 0], B[i, 1], B[i, 2], scale, stilde,
                                      carry, carry_out)
-            if omega > 0.0:
-                _mix_row(i, prev, Wnext, omega)
             if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
                 m = d
         change[t] = m
@@ -782,13 +669,12 @@ def linear_field_and_form(nthreads, row, nbr, c, half, u, y, x, out):
 
 
 def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, max_iter,
-                             theta0, carry, carry_out, mean, memory=MEMORY, local=True,
-                             accel=0.0):
+                             theta0, carry, carry_out, mean, memory=MEMORY, local=True):
     r""":func:`midpoint_solve` for any spin terms: B̄_i = Σ_terms B̄_i(W), each
     operator adding its own midpoint field (``field(W, out, mean)``) every
     sweep. The same updates (a single-site term's field is held at the
     current W_i in the locally exact update: still the same fixed point),
-    Anderson or Chebyshev acceleration, reflection form, compensated sum,
+    Anderson acceleration, reflection form, compensated sum,
     stopping rule and return values as :func:`midpoint_solve`; ``operators``
     whose field is of the form Σ_j c_ij W_j are better solved there (one
     compiled loop)."""
@@ -801,42 +687,34 @@ def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, 
     fprev = np.empty((n if memory > 0 else 0, 3))
     gprev = np.empty_like(fprev)
     gram = np.zeros((memory, memory))
-    extra = np.empty((n if accel > 0.0 and memory == 0 else 0, 3))
     jacobi_rows = np.zeros(n if local else 0, dtype=np.bool_)
-    cur, nxt, prev = W, Wnext, extra
-    lab_cur, lab_nxt, lab_prev = 0, 1, 2  # as in midpoint_solve
-    omega = 1.0
-    accelerating = extra.shape[0] > 0
-    measure_until = 2 if accelerating else max_iter
+    cur, nxt = W, Wnext
+    which = 1  # as in midpoint_solve
     previous = np.inf
     theta = theta0
     measured = -1.0
     delta = first = 0.0
     for it in range(1, max_iter + 1):
-        mixing = accelerating and it >= 2
-        if mixing:
-            omega = chebyshev_weight(it, omega, accel)
         B[:] = 0.0
         for op in operators:
             op.field(cur, B, mean)
         delta = midpoint_update(nthreads, s, cur, nxt, B, scale, stilde, carry, carry_out,
-                                local, prev, omega if mixing else 0.0, jacobi_rows)
+                                local, jacobi_rows)
         status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
-                                                     first, tol, floor, measure_until)
+                                                     first, tol, floor)
         if status >= 0:
             if local:
                 end_points(nthreads, s, nxt, B, scale, stilde, carry, carry_out, jacobi_rows)
-            return it, delta, status, _result_buffer(nxt, lab_nxt, Wnext), measured, first
+            return it, delta, status, which, measured, first
         previous = delta
         if memory > 0:
             mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
         else:
-            (cur, nxt, prev, lab_cur, lab_nxt, lab_prev,
-             accelerating) = _next_buffers(it, delta, first, accelerating, cur, nxt, prev,
-                                           lab_cur, lab_nxt, lab_prev)
+            cur, nxt = nxt, cur
+            which = 1 - which
     if local:
         end_points(nthreads, s, nxt, B, scale, stilde, carry, carry_out, jacobi_rows)
-    return max_iter, delta, NOT_CONVERGED, _result_buffer(nxt, lab_nxt, Wnext), measured, first
+    return max_iter, delta, NOT_CONVERGED, which, measured, first
 
 
 @threaded()

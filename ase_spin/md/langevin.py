@@ -790,14 +790,6 @@ class Langevin(CollectivePRK):
             return max(super()._settled_qtol(largest), _SETTLED_Q)
         return super()._settled_qtol(largest)
 
-    def _cheap_solver(self):
-        """With a bath at T > 0 acting, ``solver="auto"`` starts with locally exact
-        sweeps rather than Jacobi ones: the noise leaves the predictor ~5e-7 off
-        (fcc Co, 0.1 fs), and from there Jacobi's contraction (θ ≈ 0.03 per
-        sweep) takes three sweeps to :data:`NOISY_TOL`, the local sweep's (θ ≈
-        0.008: each spin's own precession solved exactly) two."""
-        return "local" if self._noisy() else super()._cheap_solver()
-
     def _noisy(self):
         """Does a bath with T > 0 act (the default ``tol`` is then NOISY_TOL)?"""
         return ((self.spin_damping > 0.0 and self.spin_temp > 0.0)
