@@ -88,11 +88,19 @@ class Hamiltonian:
         ]
         #: range of the neighbour list (0: no term needs pairs, none is built)
         self.cutoff = max((t.cutoff for t in terms if t.neighbor_list), default=0.0)
+        self._fingerprint = None
 
     def fingerprint(self):
         """Changes whenever a parameter of a term (or of a coupling in it) is
-        reassigned: what bound tables and integrator states compare."""
-        return tuple(t.fingerprint() for t in self.terms)
+        reassigned: what bound tables and integrator states compare. Kept
+        while no parameter anywhere has been assigned (parameter_generation):
+        the ASE calculator asks at every property call."""
+        generation = parameter_generation()
+        kept = getattr(self, "_fingerprint", None)
+        if kept is None or kept[0] != generation or kept[1] is not self.terms:
+            kept = self._fingerprint = (generation, self.terms,
+                                        tuple(t.fingerprint() for t in self.terms))
+        return kept[2]
 
     @property
     def lattice_terms(self):

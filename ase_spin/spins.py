@@ -9,9 +9,10 @@ non-magnetic and takes no part in exchange or spin motion.
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
-from .validate import real_array, robust_norm
+from .validate import real_array
 
 __all__ = ["set_spins", "get_spins", "get_moments", "split_moments", "MOMENT_RANGE"]
 
@@ -133,26 +134,51 @@ def get_moments(atoms):
         )
     if m.shape != (n, 3):
         raise ValueError(f"initial_magmoms must have shape ({n}, 3), got {m.shape}")
-    bad = np.flatnonzero(~np.isfinite(m).all(axis=1))
-    if bad.size:
+    if not np.isfinite(m).all():
+        bad = np.flatnonzero(~np.isfinite(m).all(axis=1))
         raise ValueError(f"magnetic moments are not finite for {_name_atoms(bad)}")
-    _check_magnitudes(robust_norm(m), "magnetic moments")
+    _check_magnitudes(split_moments(m)[1], "magnetic moments")
     return m
 
 
 def split_moments(moments):
-    """Split (N, 3) vectors into unit directions (zero rows where the vector is
-    zero) and magnitudes, exactly at any scale (no overflow or underflow)."""
-    largest = np.abs(moments).max(axis=1) if len(moments) else np.zeros(0)
-    mag = largest > 0.0
-    scaled = moments[mag] / largest[mag, None]
-    norm = np.sqrt(np.einsum("ij,ij->i", scaled, scaled))
-    unit = np.zeros(moments.shape)
-    unit[mag] = scaled / norm[:, None]
-    mu = np.zeros(len(moments))
-    with np.errstate(over="ignore"):  # |v| > 1.8e308: inf, refused by the callers' range check
-        mu[mag] = largest[mag] * norm
+    """Split (N, 3) vectors v_i into unit directions s_i (zero rows where v_i = 0)
+    and magnitudes μ_i, exactly at any scale (no overflow or underflow):
+
+        m = max_k |v_ik|,   μ_i = m |v_i/m|,   s_i = (v_i/m) / |v_i/m|.
+
+    μ_i > 1.8e308 is inf (refused by the callers' range check)."""
+    moments = np.ascontiguousarray(moments, dtype=np.float64)
+    unit = np.empty(moments.shape)
+    mu = np.empty(len(moments))
+    _split_rows(moments.reshape(-1, 3), unit.reshape(-1, 3), mu)
     return unit, mu
+
+
+@nb.njit(cache=True)
+def _split_rows(v, unit, mu):
+    """:func:`split_moments`, row by row: one pass, no temporaries (it runs
+    at every call of the ASE calculator; the array expressions it replaced
+    took ~40 µs for 500 atoms)."""
+    for i in range(v.shape[0]):
+        x = v[i, 0]
+        y = v[i, 1]
+        z = v[i, 2]
+        m = max(abs(x), abs(y), abs(z))
+        if m > 0.0:
+            x /= m
+            y /= m
+            z /= m
+            norm = np.sqrt(x * x + y * y + z * z)
+            unit[i, 0] = x / norm
+            unit[i, 1] = y / norm
+            unit[i, 2] = z / norm
+            mu[i] = m * norm
+        else:
+            unit[i, 0] = 0.0
+            unit[i, 1] = 0.0
+            unit[i, 2] = 0.0
+            mu[i] = 0.0
 
 
 def get_spins(atoms):

