@@ -143,8 +143,7 @@ def _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, 
     (bx, by, bz) of the current iterate (:func:`local_midpoint`, for the spin
     p = s_i + carry), the next iterate. Its end point is left to
     :func:`_end_points` after the last sweep: it depends on that sweep's W_i
-    and B̄_i only, and costs as much as the root, so it is made once a solve,
-    not once a sweep. Where the local equation has no root, the Jacobi update
+    only, so it is made once a solve, not once a sweep. Where the local equation has no root, the Jacobi update
     of :func:`_midpoint_update`, end point included, the row marked in
     ``jacobi_rows``. Returns max |ΔW_i| over components, or 4 (more than any
     change of unit vectors: "not converged") where c_i|B̄_i| >
@@ -171,18 +170,51 @@ def _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, 
 
 
 @nb.njit(cache=True, inline="always")
-def _end_points(lo, hi, s, W, B, scale, stilde, carry, carry_out, jacobi_rows):
-    """End points of rows lo … hi − 1 after locally exact sweeps
-    (:func:`_local_midpoint_direction`): s̃_i the reflection of s_i about
-    2 s_i + c_i W_i × B̄_i (:func:`_reflect`) for the last sweep's result W_i
-    and its field B̄_i (of the iterate before it), as an update computing it
-    every sweep would have left it. Rows without spin, and those the Jacobi
-    update took (``jacobi_rows``: it wrote their end points), are skipped."""
+def _end_points(lo, hi, s, W, stilde, carry, carry_out, jacobi_rows):
+    r"""End points of rows lo … hi − 1 after locally exact sweeps
+    (:func:`_local_midpoint_direction`): s̃_i the reflection of the spin
+    p = s_i + carry_i about the last sweep's result W_i (which is v/|v| for
+    v = 2p + c_i W_i × B̄_i: the reflection :func:`_reflect` makes), written as
+    the increment
+
+    .. math:: \tilde{\mathbf s}_i - \mathbf p = 2 (\mathbf p \times \mathbf W_i)
+              \times \mathbf W_i = 2[(\mathbf p\cdot\mathbf W_i)\mathbf W_i
+              - |\mathbf W_i|^2 \mathbf p],
+
+    small and without cancellation for a small step (p × W is), and added to
+    s_i compensated as in :func:`_reflect`. With |W_i|² = 1 + ε (round-off),
+    |s̃_i|² = |p|² + 4ε|p × W_i|²: the length kept to far below round-off. No
+    field, no division: a third of :func:`_reflect`'s cost. Rows without
+    spin, and those the Jacobi update took (``jacobi_rows``: it wrote their
+    end points), are skipped."""
     for i in range(lo, hi):
-        if jacobi_rows[i] or (s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0):
+        sx = s[i, 0]
+        sy = s[i, 1]
+        sz = s[i, 2]
+        if jacobi_rows[i] or (sx == 0.0 and sy == 0.0 and sz == 0.0):
             continue
-        _reflect(i, s, W[i, 0], W[i, 1], W[i, 2], B[i, 0], B[i, 1], B[i, 2], scale, stilde,
-                 carry, carry_out)
+        cx = carry[i, 0]
+        cy = carry[i, 1]
+        cz = carry[i, 2]
+        wx = W[i, 0]
+        wy = W[i, 1]
+        wz = W[i, 2]
+        # u = p × W, the carry's part kept apart from the spin's
+        ux = (sy * wz - sz * wy) + (cy * wz - cz * wy)
+        uy = (sz * wx - sx * wz) + (cz * wx - cx * wz)
+        uz = (sx * wy - sy * wx) + (cx * wy - cy * wx)
+        ax = cx + 2.0 * (uy * wz - uz * wy)
+        ay = cy + 2.0 * (uz * wx - ux * wz)
+        az = cz + 2.0 * (ux * wy - uy * wx)
+        tx = sx + ax
+        ty = sy + ay
+        tz = sz + az
+        carry_out[i, 0] = ax - (tx - sx)
+        carry_out[i, 1] = ay - (ty - sy)
+        carry_out[i, 2] = az - (tz - sz)
+        stilde[i, 0] = tx
+        stilde[i, 1] = ty
+        stilde[i, 2] = tz
 
 
 @nb.njit(cache=True, inline="always")
@@ -348,8 +380,8 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     ``local`` (the default), every spin's own equation solved exactly in the
     field of the others, B̄_i(W) held fixed (:func:`local_midpoint`, a Cayley
     rotation about B̄_i; contracts for every step size where the plain
-    iteration may not; the end points made once, after the last sweep, from
-    its fields: :func:`_end_points`); else the Jacobi map g(W) = (2 s + c W × B̄(W)) /
+    iteration may not; the end points made once, after the last sweep:
+    :func:`_end_points`); else the Jacobi map g(W) = (2 s + c W × B̄(W)) /
     |2 s + c W × B̄(W)|, which contracts only while c|B̄| ≲ 1. With ``memory``
     m > 0, the next iterate is the Anderson combination of the last m + 1
     sweeps (:func:`anderson_mix`); else g(W). Rows with s_i = 0 (non-magnetic atoms) are skipped.
@@ -380,8 +412,6 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     fprev = np.empty((n if memory > 0 else 0, 3))
     gprev = np.empty((n if memory > 0 else 0, 3))
     gram = np.zeros((memory, memory))
-    # locally exact sweeps: their fields, for the end points after the last one
-    sweep_field = np.empty((n if local and field is None else 0, 3))
     jacobi_rows = np.zeros(n if local else 0, dtype=np.bool_)
     cur = W
     nxt = Wnext
@@ -412,10 +442,6 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
                     field[i, 0] = bx
                     field[i, 1] = by
                     field[i, 2] = bz
-                elif local:
-                    sweep_field[i, 0] = bx
-                    sweep_field[i, 1] = by
-                    sweep_field[i, 2] = bz
                 if local:
                     d = _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde,
                                                   carry, carry_out, jacobi_rows)
@@ -437,14 +463,9 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
             cur, nxt = nxt, cur
             which = 1 - which
     if local:
-        if field is not None:
-            for t in nb.prange(nthreads):
-                _end_points(bounds[t], bounds[t + 1], s, nxt, field, scale, stilde, carry,
-                            carry_out, jacobi_rows)
-        else:
-            for t in nb.prange(nthreads):
-                _end_points(bounds[t], bounds[t + 1], s, nxt, sweep_field, scale, stilde,
-                            carry, carry_out, jacobi_rows)
+        for t in nb.prange(nthreads):
+            _end_points(bounds[t], bounds[t + 1], s, nxt, stilde, carry, carry_out,
+                        jacobi_rows)
     if status < 0:
         return max_iter, delta, NOT_CONVERGED, which, measured, first
     return it, delta, status, which, measured, first
@@ -469,8 +490,6 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
     fprev = np.empty((n if memory > 0 else 0, 3))
     gprev = np.empty((n if memory > 0 else 0, 3))
     gram = np.zeros((memory, memory))
-    # locally exact sweeps: their fields, for the end points after the last one
-    sweep_field = np.empty((n if local and field is None else 0, 3))
     jacobi_rows = np.zeros(n if local else 0, dtype=np.bool_)
     cur = W
     nxt = Wnext
@@ -522,10 +541,6 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
                     field[i, 0] = bx
                     field[i, 1] = by
                     field[i, 2] = bz
-                elif local:
-                    sweep_field[i, 0] = bx
-                    sweep_field[i, 1] = by
-                    sweep_field[i, 2] = bz
                 if local:
                     d = _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde,
                                                   carry, carry_out, jacobi_rows)
@@ -547,14 +562,9 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
             cur, nxt = nxt, cur
             which = 1 - which
     if local:
-        if field is not None:
-            for t in nb.prange(nthreads):
-                _end_points(atoms[t], atoms[t + 1], s, nxt, field, scale, stilde, carry,
-                            carry_out, jacobi_rows)
-        else:
-            for t in nb.prange(nthreads):
-                _end_points(atoms[t], atoms[t + 1], s, nxt, sweep_field, scale, stilde,
-                            carry, carry_out, jacobi_rows)
+        for t in nb.prange(nthreads):
+            _end_points(atoms[t], atoms[t + 1], s, nxt, stilde, carry, carry_out,
+                        jacobi_rows)
     if status < 0:
         return max_iter, delta, NOT_CONVERGED, which, measured, first
     return it, delta, status, which, measured, first
@@ -590,13 +600,13 @@ def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, l
 
 
 @threaded()
-def end_points(nthreads, s, W, B, scale, stilde, carry, carry_out, jacobi_rows):
+def end_points(nthreads, s, W, stilde, carry, carry_out, jacobi_rows):
     """The end points after the last of :func:`midpoint_update`'s locally exact
-    sweeps (:func:`_end_points`: W its result, B its fields)."""
+    sweeps (:func:`_end_points`: W their result)."""
     n = s.shape[0]
     for t in nb.prange(nthreads):
-        _end_points((n * t) // nthreads, (n * (t + 1)) // nthreads, s, W, B, scale, stilde,
-                    carry, carry_out, jacobi_rows)
+        _end_points((n * t) // nthreads, (n * (t + 1)) // nthreads, s, W, stilde, carry,
+                    carry_out, jacobi_rows)
 
 
 @threaded(reduce_threads=lambda: reduce_threads_serial)
@@ -704,7 +714,7 @@ def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, 
                                                      first, tol, floor)
         if status >= 0:
             if local:
-                end_points(nthreads, s, nxt, B, scale, stilde, carry, carry_out, jacobi_rows)
+                end_points(nthreads, s, nxt, stilde, carry, carry_out, jacobi_rows)
             return it, delta, status, which, measured, first
         previous = delta
         if memory > 0:
@@ -713,7 +723,7 @@ def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, 
             cur, nxt = nxt, cur
             which = 1 - which
     if local:
-        end_points(nthreads, s, nxt, B, scale, stilde, carry, carry_out, jacobi_rows)
+        end_points(nthreads, s, nxt, stilde, carry, carry_out, jacobi_rows)
     return max_iter, delta, NOT_CONVERGED, which, measured, first
 
 
