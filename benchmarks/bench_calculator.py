@@ -1,6 +1,6 @@
 """µs per atom for one evaluation of the fcc Co scene of peers.md.
 
-    python benchmarks/bench_calculator.py [--sizes 5 10 20 30 40] [--repeat 7]
+    python benchmarks/bench_calculator.py [--sizes 5 10 20 30 40] [--repeat 7] [--parts]
 
 Columns (medians of --repeat timings, neighbour list already built):
   full       energy + forces + magnetic forces, Evaluator.evaluate (what an
@@ -12,6 +12,12 @@ Columns (medians of --repeat timings, neighbour list already built):
   geometry   J(r_ij), J'(r_ij) d/r for the exchange pairs
   nl build   one neighbour-list build at rc + skin (the compiled cell list)
 ase's own LennardJones (LJ only, energy + forces) for small N, for scale.
+With --parts, also where the calculator's time beyond one evaluation goes (µs
+per call, not per atom): its comparison of the atoms with those of the last
+calculation (check_state, at every property call), binding the evaluator and
+splitting the moments (bound_evaluator, at every calculation), ASE's
+Atoms.copy() (twice per calculation), and a property call answered from the
+results.
 """
 
 import argparse
@@ -62,6 +68,8 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--sizes", type=int, nargs="+", default=[5, 10, 20, 30, 40])
     ap.add_argument("--repeat", type=int, default=7)
+    ap.add_argument("--parts", action="store_true",
+                    help="also time the calculator's parts beyond the evaluation")
     args = ap.parse_args()
     print(describe())
     print(f"# fcc Co, LJ rc 4.7 shift + Bethe-Slater exchange rc 4.0, skin "
@@ -110,6 +118,19 @@ def main():
         us = 1e6 / N
         print(f"{N:>8} {full * us:8.3f} {via * us:8.3f} {bonly * us:8.4f} {gtime * us:9.4f}"
               f" {nl * us:9.3f} {ase_t * us:8.1f}", flush=True)
+        if args.parts:
+            reps = max(20, args.repeat)
+            atoms.get_potential_energy()
+            parts = {
+                "check_state": median_time(lambda: calc.check_state(atoms), reps),
+                "bound_evaluator": median_time(lambda: calc.bound_evaluator(atoms), reps),
+                "Atoms.copy": median_time(atoms.copy, reps),
+                "cached get_forces": median_time(atoms.get_forces, reps),
+                "evaluate": full,
+                "three calls": via,
+            }
+            print(f"{'':>8} parts, µs per call: "
+                  + ", ".join(f"{k} {v * 1e6:.1f}" for k, v in parts.items()), flush=True)
     import numba
     print(f"# numba threading layer used: {numba.threading_layer()}")
 
