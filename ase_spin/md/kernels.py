@@ -27,6 +27,21 @@ BLOCK = 256
 
 
 @nb.njit(cache=True, inline="always")
+def _add_compensated(i, sx, sy, sz, ax, ay, az, stilde, carry_out):
+    """stilde_i = s_i + a (a: the increment with the carried rounding error
+    added), its rounding error into ``carry_out`` (Kahan)."""
+    tx = sx + ax
+    ty = sy + ay
+    tz = sz + az
+    carry_out[i, 0] = ax - (tx - sx)
+    carry_out[i, 1] = ay - (ty - sy)
+    carry_out[i, 2] = az - (tz - sz)
+    stilde[i, 0] = tx
+    stilde[i, 1] = ty
+    stilde[i, 2] = tz
+
+
+@nb.njit(cache=True, inline="always")
 def _reflect(i, s, wx, wy, wz, bx, by, bz, scale, stilde, carry, carry_out):
     """End point of spin i (into ``stilde``, its rounding error into
     ``carry_out``) for midpoint direction W_i = (wx, wy, wz) and midpoint field
@@ -49,18 +64,8 @@ def _reflect(i, s, wx, wy, wz, bx, by, bz, scale, stilde, carry, carry_out):
     # the spin is s + carry (the carried rounding error): keep its length
     kappa = (2.0 * ((sx * dx + sy * dy + sz * dz) + (cx * dx + cy * dy + cz * dz))
              + (dx * dx + dy * dy + dz * dz)) / vv
-    ax = cx + (dx - kappa * vx)
-    ay = cy + (dy - kappa * vy)
-    az = cz + (dz - kappa * vz)
-    tx = sx + ax
-    ty = sy + ay
-    tz = sz + az
-    carry_out[i, 0] = ax - (tx - sx)
-    carry_out[i, 1] = ay - (ty - sy)
-    carry_out[i, 2] = az - (tz - sz)
-    stilde[i, 0] = tx
-    stilde[i, 1] = ty
-    stilde[i, 2] = tz
+    _add_compensated(i, sx, sy, sz, cx + (dx - kappa * vx), cy + (dy - kappa * vy),
+                     cz + (dz - kappa * vz), stilde, carry_out)
     return vx, vy, vz, vv
 
 
@@ -203,18 +208,9 @@ def _end_points(lo, hi, s, W, stilde, carry, carry_out, jacobi_rows):
         ux = (sy * wz - sz * wy) + (cy * wz - cz * wy)
         uy = (sz * wx - sx * wz) + (cz * wx - cx * wz)
         uz = (sx * wy - sy * wx) + (cx * wy - cy * wx)
-        ax = cx + 2.0 * (uy * wz - uz * wy)
-        ay = cy + 2.0 * (uz * wx - ux * wz)
-        az = cz + 2.0 * (ux * wy - uy * wx)
-        tx = sx + ax
-        ty = sy + ay
-        tz = sz + az
-        carry_out[i, 0] = ax - (tx - sx)
-        carry_out[i, 1] = ay - (ty - sy)
-        carry_out[i, 2] = az - (tz - sz)
-        stilde[i, 0] = tx
-        stilde[i, 1] = ty
-        stilde[i, 2] = tz
+        _add_compensated(i, sx, sy, sz, cx + 2.0 * (uy * wz - uz * wy),
+                         cy + 2.0 * (uz * wx - ux * wz), cz + 2.0 * (ux * wy - uy * wx),
+                         stilde, carry_out)
 
 
 @nb.njit(cache=True, inline="always")
