@@ -199,6 +199,51 @@ def test_predictor_order_choice_is_the_order_with_the_smallest_error():
                 np.argmin(errors))
 
 
+def test_predictor_order_choice_kept_table_is_the_whole_table():
+    """best_extrapolation_order with its difference table kept between calls
+    (one increment appended each time, the history growing to its depth and
+    then dropping its oldest) picks the same order from a table equal bit for
+    bit to the one made whole each time; after a history that did not grow
+    by one (a reset, a step not taken) the whole table is made again; and
+    the kept table is read, not remade, when the history did grow by one."""
+    from collections import deque
+
+    from ase_spin.md import kernels
+
+    rng = np.random.default_rng(11)
+    n_rows, depth = 40, 12
+    rows = np.arange(0, n_rows, 3)
+    phase = rng.uniform(0, 6, size=(n_rows, 3))
+    kept = kernels.difference_table(len(rows))
+    history = deque(maxlen=depth)
+    orders = set()
+    for t in range(30):
+        if t == 20:  # a reset: the kept table must not be taken for it
+            history.clear()
+            history.append(np.cos(0.3 * t + phase))
+            continue
+        target = np.cos(0.3 * (t + 1) + phase) + 1e-12 * rng.normal(size=(n_rows, 3))
+        if history:
+            fresh = kernels.difference_table(len(rows))
+            expected = kernels.best_extrapolation_order(history, target, rows, kept=fresh)
+            got = kernels.best_extrapolation_order(history, target, rows, kept=kept)
+            assert got == expected
+            assert kept[1][0] == fresh[1][0] == min(len(history), depth)
+            assert np.array_equal(kept[0][:kept[1][0]], fresh[0][:fresh[1][0]]), t
+            orders.add(got)
+        history.append(np.cos(0.3 * (t + 1) + phase))
+    assert len(orders) > 1
+    # the history grew by one: the kept rows 1… are read (here spoilt on purpose)
+    spoilt = (kept[0].copy(), kept[1].copy())
+    spoilt[0][1:] += 1.0
+    target = np.cos(0.3 * 31 + phase)
+    kernels.best_extrapolation_order(history, target, rows, kept=spoilt)
+    fresh = kernels.difference_table(len(rows))
+    kernels.best_extrapolation_order(history, target, rows, kept=fresh)
+    assert np.array_equal(spoilt[0][:2], fresh[0][:2])  # ∇h_0 needs the kept h_0 only
+    assert not np.array_equal(spoilt[0][2:depth], fresh[0][2:depth])
+
+
 def test_predictor_leaves_one_geometry_and_few_sweeps_per_step():
     """fcc Co, 0.1 fs: the predicted midpoint spins are close enough (≈1e-13)
     that q̃ computed from them settles at once: one pair geometry per step

@@ -220,6 +220,10 @@ class CollectivePRK(SpinLatticeDynamics):
         magnetic_rows = np.flatnonzero(self.ev.magnetic)
         # contiguous whatever the stride: one compiled specialisation of _best_order
         st.probe = np.ascontiguousarray(magnetic_rows[:: max(1, len(magnetic_rows) // 64)])
+        # per stage, the predictor's difference table at the probe rows, kept
+        # between its order choices (kernels._best_order)
+        st.kept = np.zeros((len(self.gammas), kernels.PREDICTOR_DEPTH, 3 * len(st.probe)))
+        st.kept_n = np.zeros(len(self.gammas), dtype=np.int64)
 
     # -- the step ---------------------------------------------------------------
 
@@ -403,8 +407,8 @@ class CollectivePRK(SpinLatticeDynamics):
         st = self._state
         history = st.history[stage]
         if history:
-            st.predictor_order[stage] = kernels.best_extrapolation_order(history, W,
-                                                                         st.probe, st.s)
+            st.predictor_order[stage] = kernels.best_extrapolation_order(
+                history, W, st.probe, st.s, (st.kept[stage], st.kept_n[stage:stage + 1]))
         oldest = history.popleft() if len(history) == history.maxlen else None
         history.append(kernels.increment(W, st.s, oldest))
 

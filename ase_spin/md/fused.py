@@ -44,7 +44,7 @@ _DONE, _GIVE_UP = 0, 1
 def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, scale, tol,
           first_tol, floor, max_iter, theta, lattice, op_q, op_t, reference, radius,
           fine_reference, fine_radius, settled_tol, qtol_floor, memory, local, switch,
-          predict, coef, hs, n_history, probe, field, merge, settled_round):
+          predict, coef, hs, n_history, probe, kept, kept_n, field, merge, settled_round):
     """The skeleton of the fused step (compiled with ``lattice_forces``,
     ``spin_forces``, ``spin_geometry`` and ``spin_couplings`` bound to the
     terms' pieces): CollectivePRK._coupled_step for one spin operator on a
@@ -65,7 +65,8 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     does (normalise(s + Σ c_m D_m), coefficients ``coef`` over the increments
     ``hs``, newest first, padded), and the returned order is the one that would
     have predicted the increment W − s best (CollectivePRK._remember_midpoint's,
-    from ``n_history`` increments and the rows ``probe``), else −1; ``settle``:
+    from ``n_history`` increments and the rows ``probe``, its difference table
+    ``kept``, ``kept_n`` kept and updated: kernels._best_order), else −1; ``settle``:
     how far the second solve moved W, or −1. ``field`` receives the last
     solve's midpoint fields (kernels.midpoint_solve_half's ``field``). With
     ``merge`` (the operator offers ``spin_forces_two``), the outer round
@@ -175,7 +176,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
         increment = W - s
         order = best_order(n_history, hs[0], hs[1], hs[2], hs[3], hs[4], hs[5],  # noqa: F821
                            hs[6], hs[7], hs[8], hs[9], hs[10], hs[11], increment, probe,
-                           probe)
+                           probe, kept, kept_n)
     return (_DONE, qt, P, stilde, carry_qt, carry, FLt, W, Wnext, theta, iterations,
             geometries, order, settle, increment, settled_in)
 
@@ -200,7 +201,7 @@ def _history(ring, stage, head, count):
 
 def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, carry_mid,
          Wnext, tol, fraction, floor, max_iter, theta, settle, memory, local, switch,
-         orders, ring, counts, heads, probe, lattice, op_q, op_t, reference,
+         orders, ring, counts, heads, probe, kept, kept_n, lattice, op_q, op_t, reference,
          radius, fine_reference, fine_radius, settled_tol, qtol_floor, coefficients, merge,
          rounds):
     """Up to ``steps`` whole steps (every stage γ_k h of the composition) of the
@@ -210,7 +211,9 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
     the Python side keeps per stage comes in arrays, updated in place: the
     contraction ``theta``, how far the second solve moved W (``settle``), the
     predictor's ``orders`` and its increments in ``ring`` (stage, slot, n, 3)
-    with ``counts`` kept and the newest at ``heads``, the outer round each
+    with ``counts`` kept and the newest at ``heads``, the difference tables of
+    its order choice (``kept``, ``kept_n``: per stage; those of a step not
+    taken are dropped, kept_n = 0), the outer round each
     stage settled in (``rounds``; ``merge``: see :func:`_step`). A step is taken whole or
     not at all: where a stage gives up (see :func:`_step`) the state is that
     of the last whole step (``carry_p``, the one array the step changes in
@@ -250,8 +253,8 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
                 theta[stage], lattice, oq, ot, reference, radius, fine_reference, fine_radius,
                 settled_tol, qtol_floor,
                 memory[stage], local[stage], switch[stage], count > 0,
-                coefficients[min(orders[stage], count - 1)], hs, count, probe, field, merge,
-                rounds[stage])
+                coefficients[min(orders[stage], count - 1)], hs, count, probe, kept[stage],
+                kept_n[stage:stage + 1], field, merge, rounds[stage])
             if status != _DONE:
                 failed = stage
                 break
@@ -268,6 +271,7 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
         if failed >= 0:
             q, p, s, FL, carry_q, carry_s, Wnext = q0, p0, s0, FL0, cq0, cs0, W0
             carry_p[:] = saved_p
+            kept_n[:] = 0  # tables of a history the step did not extend
             break
         for stage in range(nstages):
             theta[stage] = new_theta[stage]
@@ -289,14 +293,15 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
 
 
 def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_iter, theta,
-                memory, local, switch, orders, ring, counts, heads, probe, row, nbr,
-                c, coefficients):
+                memory, local, switch, orders, ring, counts, heads, probe, kept, kept_n, row,
+                nbr, c, coefficients):
     """:func:`_run` for a frozen lattice (CollectivePRK's spins-only step,
     ``_substep`` with ``lattice="frozen"``) with one spin operator of the form
     B_i = Σ_j c_k W_j (``linear_pairs``: row, nbr, c): per stage the
     predictor (``extrapolate``), the midpoint solve (``solve``: the serial
     twin of kernels.midpoint_solve_half or midpoint_solve, bound per pair-list
-    kind) and the predictor's order and increment, the same calls as the
+    kind) and the predictor's order (its difference tables ``kept``,
+    ``kept_n`` as in :func:`_run`) and increment, the same calls as the
     Python path with the same arguments. Steps are taken whole or not at all;
     a solve that fails or contracts by more than ``switch`` per sweep stops
     the block before its step. Returns (steps done, s, carry of s, the spare W
@@ -336,12 +341,14 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
             increment = W - s
             new_orders[stage] = best_order(count, hs[0], hs[1], hs[2], hs[3],  # noqa: F821
                                            hs[4], hs[5], hs[6], hs[7], hs[8], hs[9], hs[10],
-                                           hs[11], increment, probe, probe)
+                                           hs[11], increment, probe, probe, kept[stage],
+                                           kept_n[stage:stage + 1])
             increments[stage] = increment
             s, carry_s = stilde, carry
             its_step += its
         if failed:
             s, carry_s, Wnext = s0, cs0, W0
+            kept_n[:] = 0  # tables of a history the step did not extend
             break
         for stage in range(nstages):
             theta[stage] = new_theta[stage]
@@ -609,7 +616,8 @@ def collective_step(dyn, h, stage):
                                        data_q, data_t, *_validity(ev),
                                        dyn._settled_tol(), dyn._settled_qtol(0.0), memory,
                                        local, switch, predict, coef, hs, n_history,
-                                       st.probe, field, merge, st.settled_round[stage])
+                                       st.probe, st.kept[stage], st.kept_n[stage:stage + 1],
+                                       field, merge, st.settled_round[stage])
     if status != _DONE:
         return None
     st.settled_round[stage] = settled_in
@@ -744,7 +752,8 @@ def collective_block(dyn, steps):
                             scales, st.carry_q, st.carry_p, st.carry_s, st.carry_mid,
                             st.Wnext, dyn.tol, collective.FIRST_SOLVE_FRACTION,
                             64.0 * dyn.tol, max_iter, theta, settle, memory, local, switch,
-                            orders, ring, counts, heads, st.probe, lattice_data,
+                            orders, ring, counts, heads, st.probe, st.kept, st.kept_n,
+                            lattice_data,
                             data_q,
                             data_t, *_validity(ev),
                             dyn._settled_tol(), dyn._settled_qtol(0.0),
@@ -799,7 +808,7 @@ def _frozen_block(dyn, steps):
     done, s, carry_s, Wnext, sweeps, last_sweeps = run(
         steps, st.s, dyn.dt, gammas, scales, st.carry_s, st.Wnext, dyn.tol, 64.0 * dyn.tol,
         max_iter, theta, memory, local, switch, orders, ring, counts, heads,
-        st.probe, pairs.row, pairs.j, c, kernels._COEFFICIENTS)
+        st.probe, st.kept, st.kept_n, pairs.row, pairs.j, c, kernels._COEFFICIENTS)
     if done:
         st.s, st.carry_s, st.Wnext = s, carry_s, Wnext
         st.theta = theta.tolist()
