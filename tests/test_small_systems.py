@@ -561,6 +561,41 @@ def test_frozen_block_leaves_the_solver_switch_to_the_general_path(monkeypatch):
     assert np.array_equal(runs[0][0], runs[1][0]) and runs[0][1] == runs[1][1]
 
 
+@pytest.mark.parametrize("lattice", ["frozen", "moving"])
+def test_auto_takes_a_jacobi_sweep_after_one_sweep_solves(lattice, monkeypatch):
+    """At 0.05 fs the predictor leaves the solves one sweep (frozen) or
+    nearly so: once a stage's first solve took one sweep, "auto" makes the
+    next with Jacobi sweeps (kernels.auto_takes_local: one pass over the spins
+    fewer than a locally exact solve's) and goes back to locally exact ones
+    after a solve of more. Blocks of compiled steps (frozen: _run_frozen;
+    moving: _run) and the general path make the same choices, bit for bit."""
+    from ase_spin.md import collective
+
+    runner = "_frozen_runner" if lattice == "frozen" else "_runner"
+    calls = _spy_runners(monkeypatch, runner)
+    runs = []
+    for general in (False, True):
+        solvers = []
+        if general:
+            general_path_only(monkeypatch)
+            real = collective.CollectivePRK._run_solver
+
+            def spy(self, *args):
+                solvers.append(args[10])
+                return real(self, *args)
+
+            monkeypatch.setattr(collective.CollectivePRK, "_run_solver", spy)
+        atoms = fcc_cobalt(3)
+        dyn = CollectivePRK(atoms, 0.05 * units.fs, lattice=lattice)
+        dyn.run(80)
+        runs.append((_state_of(atoms, dyn), dyn.total_iterations, solvers))
+    assert calls and any(result[0] > 0 for _, result in calls)  # blocks were taken
+    assert "jacobi" in runs[1][2] and "local" in runs[1][2], set(runs[1][2])
+    for a, b in zip(runs[0][0], runs[1][0]):
+        assert np.array_equal(a, b)
+    assert runs[0][1] == runs[1][1]
+
+
 @pytest.mark.parametrize("order, switch_at", [(2, 0.1035), (4, 0.0655)])
 def test_a_block_stopping_mid_way_hands_that_step_to_the_general_path(order, switch_at,
                                                                       monkeypatch):

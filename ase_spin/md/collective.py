@@ -30,10 +30,11 @@ TOL_RANGE = (1e-16, 1e-3)
 
 #: The midpoint solvers: (Anderson memory, locally exact sweep).
 SOLVERS = {"anderson": (kernels.MEMORY, True), "local": (0, True), "jacobi": (0, False)}
-# "auto": locally exact sweeps (_AUTO_FIRST) while their observed contraction per
-# sweep stays below _AUTO_SWITCH, else the Anderson solver from then on at that
-# stage and step size; a solve of _AUTO_FIRST not done in _AUTO_FIRST_SWEEPS sweeps
-# is redone by it. Locally exact sweeps, not Jacobi ones, although a Jacobi sweep
+# "auto": locally exact sweeps (_AUTO_FIRST; a Jacobi sweep after a one-sweep solve
+# at small contraction: kernels.auto_takes_local) while their observed contraction
+# per sweep stays below _AUTO_SWITCH, else the Anderson solver from then on at that
+# stage and step size; a solve of its first mode not done in _AUTO_FIRST_SWEEPS
+# sweeps is redone by it. Locally exact sweeps, not Jacobi ones, although a Jacobi sweep
 # costs ~4 % less: where the predictor leaves one or two sweeps to make (fcc Co at
 # 0.1–0.15 fs) both cost the same, and from 0.25 fs on, or on a frozen lattice,
 # the locally exact sweeps' faster contraction (each spin's own precession solved
@@ -224,6 +225,9 @@ class CollectivePRK(SpinLatticeDynamics):
         # between its order choices (kernels._best_order)
         st.kept = np.zeros((len(self.gammas), kernels.PREDICTOR_DEPTH, 3 * len(st.probe)))
         st.kept_n = np.zeros(len(self.gammas), dtype=np.int64)
+        # per stage, whether its last solve in auto's first mode took one sweep
+        # (kernels.auto_takes_local)
+        st.one_sweep = np.zeros(len(self.gammas), dtype=np.bool_)
 
     # -- the step ---------------------------------------------------------------
 
@@ -304,7 +308,8 @@ class CollectivePRK(SpinLatticeDynamics):
                                                 half=self.half_lists, refreshed=True)
                 geometries += 1
             tol = first_tol if solves == 0 else self.tol
-            W, s_new, its, moved, carry_s = self._solve(s, st.ops_next, W, h, stage, tol=tol)
+            W, s_new, its, moved, carry_s = self._solve(s, st.ops_next, W, h, stage, tol=tol,
+                                                        first=solves == 0)
             iterations += its
             loose = tol > self.tol
             if new_q:
@@ -412,19 +417,24 @@ class CollectivePRK(SpinLatticeDynamics):
         oldest = history.popleft() if len(history) == history.maxlen else None
         history.append(kernels.increment(W, st.s, oldest))
 
-    def _solve(self, s, operators, W, h, stage, mean=True, tol=None):
+    def _solve(self, s, operators, W, h, stage, mean=True, tol=None, first=True):
         """Midpoint spins for the midpoint fields of ``operators`` (B̄ =
         ½[B(q, W) + B(q̃, W)]; B(q, W) itself when ``mean`` is False: a frozen
         lattice), to tolerance ``tol`` (default ``self.tol``). Returns (W, s̃,
-        sweeps, how far W moved from the starting guess, the rounding error of s̃)."""
+        sweeps, how far W moved from the starting guess, the rounding error of s̃).
+        ``first``: the step's first solve (from the predictor), whose sweeps
+        "auto" chooses by kernels.auto_takes_local when it is to ``self.tol``."""
         st = self._state
         tol = self.tol if tol is None else tol
+        chooses = first and tol <= self.tol  # (not a loose first solve, not a later one)
         scale = self._scale(h)
         carry = np.zeros_like(s)
         stilde = np.zeros_like(s)
         solver = self._solver
         cheap = _AUTO_FIRST
         if solver == "auto":
+            if chooses and not kernels.auto_takes_local(st.one_sweep[stage], st.theta[stage]):
+                cheap = "jacobi"
             solver = st.modes.get((stage, h), cheap)
         if solver == cheap and self._solver == "auto":
             # cheap sweeps while they contract fast; the stiff case is retried below,
@@ -436,9 +446,12 @@ class CollectivePRK(SpinLatticeDynamics):
                 min(self.max_iter, _AUTO_FIRST_SWEEPS))
             if status != kernels.NOT_CONVERGED and not (its > 2 and theta > _AUTO_SWITCH):
                 st.theta[stage] = theta if 0.0 <= theta < 1.0 else st.theta[stage]
+                if chooses:
+                    st.one_sweep[stage] = its == 1
                 if which == 1:
                     W, st.Wnext = st.Wnext, W
                 return W, stilde, its, moved, carry
+            st.one_sweep[stage] = False
             st.modes[(stage, h)] = "anderson"
             st.theta[stage] = 1.0
             if status == kernels.NOT_CONVERGED:

@@ -44,7 +44,8 @@ _DONE, _GIVE_UP = 0, 1
 def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, scale, tol,
           first_tol, floor, max_iter, theta, lattice, op_q, op_t, reference, radius,
           fine_reference, fine_radius, settled_tol, qtol_floor, memory, local, switch,
-          predict, coef, hs, n_history, probe, kept, kept_n, field, merge, settled_round):
+          adaptive, one_sweep, predict, coef, hs, n_history, probe, kept, kept_n, field, merge,
+          settled_round):
     """The skeleton of the fused step (compiled with ``lattice_forces``,
     ``spin_forces``, ``spin_geometry`` and ``spin_couplings`` bound to the
     terms' pieces): CollectivePRK._coupled_step for one spin operator on a
@@ -60,7 +61,11 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     ``first_tol``, the others at ``tol`` (collective.first_tolerance).
     ``memory``, ``local``: the midpoint solver (kernels.midpoint_solve_half);
     a solve contracting by more than ``switch`` per sweep also gives up, so
-    that CollectivePRK's ``solver="auto"`` makes its switch on the general path.
+    that CollectivePRK's ``solver="auto"`` makes its switch on the general path;
+    with ``adaptive`` (auto's first mode) the step's first solve, if to
+    ``tol``, chooses its sweeps from ``one_sweep`` (whether the stage's last
+    such solve took one) and θ (kernels.auto_takes_local), and the updated
+    ``one_sweep`` is returned (last but one).
     With ``predict``, W is not read but predicted here as CollectivePRK._predict
     does (normalise(s + Σ c_m D_m), coefficients ``coef`` over the increments
     ``hs``, newest first, padded), and the returned order is the one that would
@@ -111,7 +116,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
         if first:
             if not moved <= radius:
                 return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
-                        settled_round)
+                        one_sweep, settled_round)
             qtol = max(4.0 * _EPS * max(1.0, largest), qtol_floor)
             first = False
         elif apart <= qtol:
@@ -126,21 +131,28 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
             moved_list, moved_sublists = largest_displacements(qt, reference, fine_reference)
             if not (moved_list <= radius and moved_sublists <= fine_radius):
                 return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
-                        settled_round)
+                        one_sweep, settled_round)
             spin_geometry(qt, op_t, op_q)  # noqa: F821
             geometries += 1
         row, nbr, c = spin_couplings(op_t)  # noqa: F821
         stilde = np.zeros_like(s)
         carry = np.zeros_like(s)
         use_tol = first_tol if solves == 0 else tol
+        use_local = local
+        # the step's first solve, to tol (not a loose one, not a later one)
+        chooses = adaptive and solves == 0 and not use_tol > tol
+        if chooses:
+            use_local = kernels.auto_takes_local(one_sweep, theta)
         its, delta, status, which, measured, moved_w = solve_half(  # noqa: F821
             1, row, nbr, c, s, W, Wnext, stilde, scale, use_tol, floor, max_iter,
-            min(1.0, 2.0 * theta), carry_s, carry, memory, local, field)
+            min(1.0, 2.0 * theta), carry_s, carry, memory, use_local, field)
         if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch):
             return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
-                        settled_round)
+                    one_sweep, settled_round)
         if 0.0 <= measured < 1.0:  # observed (−1: none was)
             theta = measured
+        if chooses:
+            one_sweep = its == 1
         if which == 1:
             W, Wnext = Wnext, W
         solved = True
@@ -157,12 +169,12 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
             break
     if not settled:
         return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
-                        settled_round)
+                one_sweep, settled_round)
     FLt = np.zeros_like(q)
     lattice_forces(qt, lattice, FLt)  # noqa: F821
     if not all_finite(FLt):
         return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
-                        settled_round)
+                one_sweep, settled_round)
     if pending:
         F = np.empty_like(FLt)
         add_kept(keep, FLt, F)  # noqa: F821
@@ -178,7 +190,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
                            hs[6], hs[7], hs[8], hs[9], hs[10], hs[11], increment, probe,
                            probe, kept, kept_n)
     return (_DONE, qt, P, stilde, carry_qt, carry, FLt, W, Wnext, theta, iterations,
-            geometries, order, settle, increment, settled_in)
+            geometries, order, settle, increment, one_sweep, settled_in)
 
 
 @nb.njit(cache=True, inline="always")
@@ -201,7 +213,7 @@ def _history(ring, stage, head, count):
 
 def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, carry_mid,
          Wnext, tol, fraction, floor, max_iter, theta, settle, memory, local, switch,
-         orders, ring, counts, heads, probe, kept, kept_n, lattice, op_q, op_t, reference,
+         adaptive, one_sweep, orders, ring, counts, heads, probe, kept, kept_n, lattice, op_q, op_t, reference,
          radius, fine_reference, fine_radius, settled_tol, qtol_floor, coefficients, merge,
          rounds):
     """Up to ``steps`` whole steps (every stage γ_k h of the composition) of the
@@ -210,8 +222,10 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
     between: the same calls with the same arguments, so the same bits. What
     the Python side keeps per stage comes in arrays, updated in place: the
     contraction ``theta``, how far the second solve moved W (``settle``), the
-    predictor's ``orders`` and its increments in ``ring`` (stage, slot, n, 3)
-    with ``counts`` kept and the newest at ``heads``, the difference tables of
+    whether its last solve took one sweep (``one_sweep``; ``adaptive``: see
+    :func:`_step`), the predictor's ``orders`` and its increments in ``ring``
+    (stage, slot, n, 3) with ``counts`` kept and the newest at ``heads``, the
+    difference tables of
     its order choice (``kept``, ``kept_n``: per stage; those of a step not
     taken are dropped, kept_n = 0), the outer round each
     stage settled in (``rounds``; ``merge``: see :func:`_step`). A step is taken whole or
@@ -230,6 +244,7 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
     new_settle = settle.copy()
     new_orders = orders.copy()
     new_rounds = rounds.copy()
+    new_one_sweep = one_sweep.copy()
     done = 0
     sweeps = 0
     last_sweeps = 0
@@ -247,13 +262,14 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
             hs = _history(ring, stage, head, count)
             first_tol = min(1e-6, max(tol, fraction * settle[stage]))
             (status, qt, P, s_new, cq, cs, FLt, W, Wn, th, its, geos, order, moved,
-             increment, rnd) = fused_step(  # noqa: F821 - bound per combination of terms
+             increment, single, rnd) = fused_step(  # noqa: F821 - bound per combination
                 q, p, s, FL, m, gammas[stage] * dt, carry_q, carry_p, carry_s, carry_mid,
                 hs[0], Wnext, scales[stage], tol, first_tol, floor, max_iter[stage],
                 theta[stage], lattice, oq, ot, reference, radius, fine_reference, fine_radius,
                 settled_tol, qtol_floor,
-                memory[stage], local[stage], switch[stage], count > 0,
-                coefficients[min(orders[stage], count - 1)], hs, count, probe, kept[stage],
+                memory[stage], local[stage], switch[stage], adaptive[stage], one_sweep[stage],
+                count > 0, coefficients[min(orders[stage], count - 1)], hs, count, probe,
+                kept[stage],
                 kept_n[stage:stage + 1], field, merge, rounds[stage])
             if status != _DONE:
                 failed = stage
@@ -265,6 +281,7 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
                 new_settle[stage] = moved
             new_orders[stage] = order
             new_rounds[stage] = rnd
+            new_one_sweep[stage] = single
             increments[stage] = increment
             its_step += its
             geometries += geos
@@ -278,6 +295,7 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
             settle[stage] = new_settle[stage]
             orders[stage] = new_orders[stage]
             rounds[stage] = new_rounds[stage]
+            one_sweep[stage] = new_one_sweep[stage]
             heads[stage] = (heads[stage] + 1) % depth
             ring[stage, heads[stage]] = increments[stage]
             counts[stage] = min(counts[stage] + 1, depth)
@@ -293,8 +311,8 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
 
 
 def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_iter, theta,
-                memory, local, switch, orders, ring, counts, heads, probe, kept, kept_n, row,
-                nbr, c, coefficients):
+                memory, local, switch, adaptive, one_sweep, orders, ring, counts, heads, probe,
+                kept, kept_n, row, nbr, c, coefficients):
     """:func:`_run` for a frozen lattice (CollectivePRK's spins-only step,
     ``_substep`` with ``lattice="frozen"``) with one spin operator of the form
     B_i = Σ_j c_k W_j (``linear_pairs``: row, nbr, c): per stage the
@@ -311,6 +329,7 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
     increments = np.empty((nstages,) + s.shape)
     new_theta = theta.copy()
     new_orders = orders.copy()
+    new_one_sweep = one_sweep.copy()
     done = 0
     sweeps = 0
     last_sweeps = 0
@@ -327,15 +346,20 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
                         s, W)
             stilde = np.zeros_like(s)
             carry = np.zeros_like(s)
+            use_local = local[stage]
+            if adaptive[stage]:
+                use_local = kernels.auto_takes_local(one_sweep[stage], theta[stage])
             its, delta, status, which, measured, moved = solve(  # noqa: F821
                 1, row, nbr, c, s, W, Wnext, stilde, scales[stage], tol, floor,
                 max_iter[stage], min(1.0, 2.0 * theta[stage]), carry_s, carry, memory[stage],
-                local[stage])
+                use_local)
             if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch[stage]):
                 failed = True
                 break
             if 0.0 <= measured < 1.0:
                 new_theta[stage] = measured
+            if adaptive[stage]:
+                new_one_sweep[stage] = its == 1
             if which == 1:
                 W, Wnext = Wnext, W
             increment = W - s
@@ -353,6 +377,7 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
         for stage in range(nstages):
             theta[stage] = new_theta[stage]
             orders[stage] = new_orders[stage]
+            one_sweep[stage] = new_one_sweep[stage]
             heads[stage] = (heads[stage] + 1) % depth
             ring[stage, heads[stage]] = increments[stage]
             counts[stage] = min(counts[stage] + 1, depth)
@@ -561,19 +586,21 @@ def _validity(ev):
 
 def _solver_settings(dyn, stage, h):
     """(Anderson memory, locally exact sweep, sweeps allowed, contraction per
-    sweep above which to give up) of a stage's midpoint solves, as
-    CollectivePRK._solve chooses: with ``"auto"``, its first solver until it
+    sweep above which to give up, whether each solve chooses its sweeps by
+    kernels.auto_takes_local) of a stage's midpoint solves, as
+    CollectivePRK._solve chooses: with ``"auto"``, its first mode until it
     contracts slowly (then the general path makes the switch)."""
     collective = _collective or _import_collective()
-    solver, max_iter, switch = dyn._solver, dyn.max_iter, np.inf
+    solver, max_iter, switch, adaptive = dyn._solver, dyn.max_iter, np.inf, False
     if solver == "auto":
         first = collective._AUTO_FIRST
         solver = dyn._state.modes.get((stage, h), first)
         if solver == first:
             max_iter = min(max_iter, collective._AUTO_FIRST_SWEEPS)
             switch = collective._AUTO_SWITCH
+            adaptive = True
     memory, local = collective.SOLVERS[solver]
-    return memory, local, max_iter, switch
+    return memory, local, max_iter, switch, adaptive
 
 
 def collective_step(dyn, h, stage):
@@ -591,7 +618,7 @@ def collective_step(dyn, h, stage):
     ev = dyn.ev
     scale = dyn._scale(h)
     collective = _collective or _import_collective()
-    memory, local, max_iter, switch = _solver_settings(dyn, stage, h)
+    memory, local, max_iter, switch, adaptive = _solver_settings(dyn, stage, h)
     # the midpoint fields, where asked for (else into the same buffer, unread:
     # one compiled specialisation of the step)
     field = st.field_out if st.field_out is not None else dyn._midpoint_field_buffer()
@@ -608,19 +635,21 @@ def collective_step(dyn, h, stage):
         n_history = 0
         coef = kernels._COEFFICIENTS[0]
     (status, qt, P, s_new, carry_q, carry_s, FL, W, Wnext, theta, iterations,
-     geometries, order, settle, increment, settled_in) = step(st.q, st.p, st.s, st.FL, dyn.masses[:, 0], h,
+     geometries, order, settle, increment, one_sweep, settled_in) = step(st.q, st.p, st.s, st.FL, dyn.masses[:, 0], h,
                                        st.carry_q, st.carry_p, st.carry_s, st.carry_mid, W,
                                        st.Wnext, scale, dyn.tol,
                                        collective.first_tolerance(dyn.tol, st.settle[stage]),
                                        64.0 * dyn.tol, max_iter, st.theta[stage], lattice_data,
                                        data_q, data_t, *_validity(ev),
                                        dyn._settled_tol(), dyn._settled_qtol(0.0), memory,
-                                       local, switch, predict, coef, hs, n_history,
+                                       local, switch, adaptive, bool(st.one_sweep[stage]),
+                                       predict, coef, hs, n_history,
                                        st.probe, st.kept[stage], st.kept_n[stage:stage + 1],
                                        field, merge, st.settled_round[stage])
     if status != _DONE:
         return None
     st.settled_round[stage] = settled_in
+    st.one_sweep[stage] = one_sweep
     st.field_filled = st.field_out is not None
     st.theta[stage] = theta
     st.Wnext = Wnext
@@ -682,12 +711,13 @@ def _stage_arrays(dyn):
     local = np.empty(nstages, dtype=np.bool_)
     max_iter = np.empty(nstages, dtype=np.int64)
     switch = np.empty(nstages)
+    adaptive = np.empty(nstages, dtype=np.bool_)
     for stage, gamma in enumerate(dyn.gammas):
         h = gamma * dyn.dt
         scales[stage] = dyn._scale(h)
-        memory[stage], local[stage], max_iter[stage], switch[stage] = _solver_settings(
-            dyn, stage, h)
-    return gammas, scales, memory, local, max_iter, switch
+        (memory[stage], local[stage], max_iter[stage], switch[stage],
+         adaptive[stage]) = _solver_settings(dyn, stage, h)
+    return gammas, scales, memory, local, max_iter, switch, adaptive
 
 
 def _history_ring(st):
@@ -741,7 +771,7 @@ def collective_block(dyn, steps):
         return 0, 0, 0, 0
     ev = dyn.ev
     collective = _collective or _import_collective()
-    gammas, scales, memory, local, max_iter, switch = _stage_arrays(dyn)
+    gammas, scales, memory, local, max_iter, switch, adaptive = _stage_arrays(dyn)
     ring, counts, heads = _history_ring(st)
     theta = np.array(st.theta, dtype=float)
     settle = np.array(st.settle, dtype=float)
@@ -752,7 +782,7 @@ def collective_block(dyn, steps):
                             scales, st.carry_q, st.carry_p, st.carry_s, st.carry_mid,
                             st.Wnext, dyn.tol, collective.FIRST_SOLVE_FRACTION,
                             64.0 * dyn.tol, max_iter, theta, settle, memory, local, switch,
-                            orders, ring, counts, heads, st.probe, st.kept, st.kept_n,
+                            adaptive, st.one_sweep, orders, ring, counts, heads, st.probe, st.kept, st.kept_n,
                             lattice_data,
                             data_q,
                             data_t, *_validity(ev),
@@ -801,14 +831,14 @@ def _frozen_block(dyn, steps):
     run = _frozen_runner(bool(pairs.half))
     if not _pays(dyn, run):
         return 0, 0, 0, 0
-    gammas, scales, memory, local, max_iter, switch = _stage_arrays(dyn)
+    gammas, scales, memory, local, max_iter, switch, adaptive = _stage_arrays(dyn)
     ring, counts, heads = _history_ring(st)
     theta = np.array(st.theta, dtype=float)
     orders = np.array(st.predictor_order, dtype=np.int64)
     done, s, carry_s, Wnext, sweeps, last_sweeps = run(
         steps, st.s, dyn.dt, gammas, scales, st.carry_s, st.Wnext, dyn.tol, 64.0 * dyn.tol,
-        max_iter, theta, memory, local, switch, orders, ring, counts, heads,
-        st.probe, st.kept, st.kept_n, pairs.row, pairs.j, c, kernels._COEFFICIENTS)
+        max_iter, theta, memory, local, switch, adaptive, st.one_sweep, orders, ring, counts,
+        heads, st.probe, st.kept, st.kept_n, pairs.row, pairs.j, c, kernels._COEFFICIENTS)
     if done:
         st.s, st.carry_s, st.Wnext = s, carry_s, Wnext
         st.theta = theta.tolist()

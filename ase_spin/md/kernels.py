@@ -141,6 +141,27 @@ def local_midpoint(px, py, pz, bx, by, bz, c):
             g * (pz + a * (px * by - py * bx) + f * bz), True)
 
 
+#: "auto" takes a Jacobi sweep rather than a locally exact one for a solve that
+#: follows a one-sweep solve at its stage, while the stage's sweeps contract by
+#: less than this a sweep (see :func:`auto_takes_local`).
+JACOBI_AFTER_ONE_SWEEP_BELOW = 0.1
+
+
+@nb.njit(cache=True, inline="always")
+def auto_takes_local(one_sweep, theta):
+    """Whether ``solver="auto"`` (in its first mode, before any switch to
+    Anderson) makes a step's first solve (from the predictor, to the full
+    tolerance) with locally exact sweeps, else with Jacobi's (every other
+    solve takes locally exact ones): not when the stage's last such solve took
+    a single sweep (``one_sweep``) and its sweeps
+    contract by less than :data:`JACOBI_AFTER_ONE_SWEEP_BELOW` (``theta``):
+    there the predictor leaves nothing to contract, and a one-sweep Jacobi
+    solve costs less than a locally exact one (which needs its end points
+    made in a pass of their own). One function for the Python and the
+    compiled paths: the same choice to the bit."""
+    return not (one_sweep and theta < JACOBI_AFTER_ONE_SWEEP_BELOW)
+
+
 @nb.njit(cache=True, inline="always")
 def _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out,
                               jacobi_rows):
