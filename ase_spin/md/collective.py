@@ -150,7 +150,9 @@ class CollectivePRK(SpinLatticeDynamics):
         every step size, converges until the lattice, not the spins, limits
         the step. "auto" (the default): "local" while it contracts by less
         than 0.4 per sweep, else "anderson" (at that stage and step size), a
-        failed "local" solve redone by it.
+        failed "local" solve redone by it; a step's first solve takes Jacobi
+        sweeps after one that took a single sweep
+        (:func:`~ase_spin.md.kernels.auto_takes_local`).
     lattice : "moving" or "frozen"
         ``"frozen"`` integrates the spins only (as does fixing every atom with
         ``FixAtoms``); pair geometry is then computed once.
