@@ -403,3 +403,104 @@ def test_a_solve_stopped_by_a_non_finite_field_names_the_atom():
         dyn._raise_not_converged(st.ops, W, 3, float("nan"), dyn._scale(dyn.dt), True)
     with pytest.raises(SpinConvergenceError, match="did not converge"):
         dyn._raise_not_converged(st.ops, st.s, 50, 1e-3, dyn._scale(dyn.dt), True)
+
+
+def _ring_lists(n, j_of_pair, jitter=0.0):
+    """A ring of n spins with nearest- and next-nearest-neighbour couplings as a
+    half list in the row of the smaller index, the same pairs with every
+    other pair stored in the row of the larger index, and the full list:
+    (half, flipped, full), each (row, nbr, J)."""
+    rng = np.random.default_rng(5)
+    pairs = [(i, (i + d) % n) for i in range(n) for d in (1, 2)]
+    J = np.array([j_of_pair * (1.0 + jitter * rng.uniform(-1, 1)) for _ in pairs])
+
+    def csr(rows_of):
+        order = np.argsort([r for r, _ in rows_of], kind="stable")
+        rows = np.array([rows_of[k][0] for k in order])
+        nbr = np.array([rows_of[k][1] for k in order], dtype=np.int32)
+        return np.searchsorted(rows, np.arange(n + 1)), nbr, order
+
+    canon = [(min(a, b), max(a, b)) for a, b in pairs]
+    row, nbr, order = csr(canon)
+    half = (row, nbr, J[order])
+    flip = [(b, a) if k % 2 else (a, b) for k, (a, b) in enumerate(canon)]
+    row, nbr, order = csr(flip)
+    flipped = (row, nbr, J[order])
+    both = canon + [(b, a) for a, b in canon]
+    row, nbr, order = csr(both)
+    full = (row, nbr, np.concatenate([J, J])[order])
+    return half, flipped, full
+
+
+@pytest.mark.parametrize("half", [True, False])
+def test_locally_exact_sweep_takes_the_spins_in_gauss_seidel_order(half):
+    """One locally exact sweep solves spin i in the field of the spins before
+    it at their new values and of those after it at the iterate's (one
+    chunk): checked spin by spin against local_midpoint."""
+    from ase_spin.md import kernels
+
+    n = 12
+    lists = _ring_lists(n, 0.3, jitter=0.5)
+    row, nbr, J = lists[0] if half else lists[2]
+    rng = np.random.default_rng(1)
+    s = rng.normal(size=(n, 3))
+    s /= np.linalg.norm(s, axis=1)[:, None]
+    W0 = s + 0.1 * rng.normal(size=(n, 3))
+    W0 /= np.linalg.norm(W0, axis=1)[:, None]
+    c = 0.4
+    solve = kernels.midpoint_solve_half if half else kernels.midpoint_solve
+    W, Wn, st = W0.copy(), np.zeros_like(s), np.zeros_like(s)
+    its, delta, status, which, *_ = solve.serial(
+        1, row, nbr, J, s, W, Wn, st, np.full(n, c), 3.0, 0.0, 1, 0.5,
+        np.zeros_like(s), np.zeros_like(s), 0, True)  # "converged" after one sweep
+    assert its == 1 and status == kernels.CONVERGED
+    got = W if which == 0 else Wn
+    full = lists[2]
+    new = W0.copy()
+    for i in range(n):
+        b = np.zeros(3)
+        for k in range(full[0][i], full[0][i + 1]):
+            j = full[1][k]
+            b += full[2][k] * (new[j] if j < i else W0[j])
+        new[i] = local_midpoint(*s[i], *b, c)[:3]
+    assert np.abs(got - new).max() < 1e-15
+
+
+@pytest.mark.parametrize("half", [True, False])
+def test_gauss_seidel_sweeps_reach_the_same_solution_in_any_chunks(half):
+    """Rows split into chunks (each taken in order, the others' rows at the
+    iterate's values: the same sweeps for any number of threads), and a half
+    list with pairs stored in the row of the larger index: the solve reaches
+    the solution of the one-chunk solve, the Jacobi solve's, to its tolerance;
+    one chunk, fewer sweeps than Jacobi's."""
+    from ase_spin.md import kernels
+
+    n = 40
+    half_list, flipped, full = _ring_lists(n, 2.0, jitter=0.3)
+    rng = np.random.default_rng(2)
+    s = rng.normal(size=(n, 3))
+    s /= np.linalg.norm(s, axis=1)[:, None]
+    solve = kernels.midpoint_solve_half if half else kernels.midpoint_solve
+
+    def run(lists, chunks_, local, threaded=False):
+        W, Wn, st = s.copy(), np.zeros_like(s), np.zeros_like(s)
+        fn = solve if threaded else solve.serial
+        its, delta, status, which, *_ = fn(
+            chunks_, *lists, s, W, Wn, st, np.full(n, 0.05), 1e-15, 6.4e-14, 200, 0.5,
+            np.zeros_like(s), np.zeros_like(s), 0, local)
+        assert status != kernels.NOT_CONVERGED
+        return its, st
+
+    lists = half_list if half else full
+    its_gs, ref = run(lists, 1, True)
+    its_jacobi, jac = run(lists, 1, False)
+    assert its_gs < its_jacobi
+    assert np.abs(jac - ref).max() < 1e-13
+    variants = [(lists, 3, True, False), (lists, 3, True, True)]
+    if half:
+        variants += [(flipped, 1, True, False), (flipped, 3, True, False)]
+    for args in variants:
+        _, got = run(*args)
+        assert np.abs(got - ref).max() < 1e-13, args
+    # the threaded kernel and its serial twin: the same bits for three chunks
+    assert np.array_equal(run(lists, 3, True, False)[1], run(lists, 3, True, True)[1])
