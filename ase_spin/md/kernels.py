@@ -395,17 +395,10 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     with c = hσ/ħ (per spin: ``scale`` holds c_i, which carries each spin's
     precession rate factor). Each sweep maps the iterate W to g(W): with
     ``local`` (the default), every spin's own equation solved exactly in the
-    field of the others held fixed (:func:`local_midpoint`, a Cayley
-    rotation about that field; contracts for every step size where the plain
+    field of the others, B̄_i(W) held fixed (:func:`local_midpoint`, a Cayley
+    rotation about B̄_i; contracts for every step size where the plain
     iteration may not; the end points made once, after the last sweep:
-    :func:`_end_points`), the spins taken in Gauss–Seidel order: spin i's field
-
-    .. math:: \bar{\mathbf B}_i = \sum_{j \in C,\, j < i} \bar J_{ij} g(W)_j
-              + \sum_{\text{other } j} \bar J_{ij} \mathbf W_j
-
-    (C: the chunk of rows i belongs to; the chunks are fixed whatever the
-    number of threads, so the sweeps are too), about twice the contraction of
-    Jacobi's order on a lattice; else the Jacobi map g(W) = (2 s + c W × B̄(W)) /
+    :func:`_end_points`); else the Jacobi map g(W) = (2 s + c W × B̄(W)) /
     |2 s + c W × B̄(W)|, which contracts only while c|B̄| ≲ 1. With ``memory``
     m > 0, the next iterate is the Anderson combination of the last m + 1
     sweeps (:func:`anderson_mix`); else g(W). Rows with s_i = 0 (non-magnetic atoms) are skipped.
@@ -450,8 +443,7 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     for it in range(1, max_iter + 1):
         for t in nb.prange(nthreads):
             m = 0.0
-            lo = bounds[t]
-            for i in range(lo, bounds[t + 1]):
+            for i in range(bounds[t], bounds[t + 1]):
                 if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
                     continue
                 bx = 0.0
@@ -460,16 +452,9 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
                 for k in range(row[i], row[i + 1]):
                     j = nbr[k]
                     Jk = Jbar[k]
-                    if local and j >= lo and j < i:
-                        # Gauss–Seidel order: the rows before i in its chunk
-                        # at their new values (other chunks' at the iterate's)
-                        bx += Jk * nxt[j, 0]
-                        by += Jk * nxt[j, 1]
-                        bz += Jk * nxt[j, 2]
-                    else:
-                        bx += Jk * cur[j, 0]
-                        by += Jk * cur[j, 1]
-                        bz += Jk * cur[j, 2]
+                    bx += Jk * cur[j, 0]
+                    by += Jk * cur[j, 1]
+                    bz += Jk * cur[j, 2]
                 if field is not None:
                     field[i, 0] = bx
                     field[i, 1] = by
@@ -508,16 +493,8 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
                         max_iter, theta0, carry, carry_out, memory=MEMORY, local=True,
                         field=None):
     """:func:`midpoint_solve` over a half pair list (each pair once, half the
-    memory traffic). A Jacobi sweep scatters J̄_ij W_j into row i and J̄_ij W_i
-    into row j of per-thread buffers, then updates every spin from their sum.
-    A locally exact sweep (Gauss–Seidel order, as :func:`midpoint_solve`)
-    runs through each chunk's rows once: row i gathers J̄_ij W_j over its
-    pairs (j ≥ i: not yet updated), adds what the rows before it scattered,
-    is updated, and scatters J̄_ij g(W)_i to the rows after it in its chunk.
-    Pairs whose far end is updated before row i (j < i, or j in another
-    chunk) are scattered at the iterate's values in a pass before the sweep:
-    none in one chunk of NeighborCache's lists (each pair in the row of its
-    smaller index), which the solve checks once."""
+    memory traffic): each sweep scatters J̄_ij W_j into row i and J̄_ij W_i into
+    row j of per-thread buffers, then updates every spin from their sum."""
     n = len(row) - 1
     bounds = balanced_chunks(row, nthreads)
     atoms = np.empty(nthreads + 1, dtype=np.int64)
@@ -531,22 +508,6 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
     gprev = np.empty((n if memory > 0 else 0, 3))
     gram = np.zeros((memory, memory))
     jacobi_rows = np.zeros(n if local else 0, dtype=np.bool_)
-    # whether any pair's far end comes before its row in the sweep (j < i, or
-    # in another chunk): none in one chunk of a list kept in the row of the
-    # smaller index (NeighborCache's)
-    ahead = False
-    if local:
-        for t in range(nthreads):
-            hi = bounds[t + 1]
-            for i in range(bounds[t], hi):
-                for k in range(row[i], row[i + 1]):
-                    if nbr[k] < i or nbr[k] >= hi:
-                        ahead = True
-                        break
-                if ahead:
-                    break
-            if ahead:
-                break
     cur = W
     nxt = Wnext
     which = 1  # the buffer nxt is: 0 = W, 1 = Wnext
@@ -558,114 +519,54 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
     status = -1
     it = 0
     for it in range(1, max_iter + 1):
-        if local:
-            # Gauss–Seidel order: row i sees the rows before it in its chunk at
-            # their new values (scattered as they are made), the rest at the
-            # iterate's; pairs whose far end comes earlier, or in another chunk,
-            # are scattered at the iterate's values before the sweep
-            if ahead:
-                for t in nb.prange(nthreads):
-                    lo = bounds[t]
-                    hi = bounds[t + 1]
-                    for i in range(lo, hi):
-                        wx = cur[i, 0]
-                        wy = cur[i, 1]
-                        wz = cur[i, 2]
-                        for k in range(row[i], row[i + 1]):
-                            j = nbr[k]
-                            if j < i or j >= hi:
-                                Jk = Jbar[k]
-                                buf[t, j, 0] += Jk * wx
-                                buf[t, j, 1] += Jk * wy
-                                buf[t, j, 2] += Jk * wz
-            for t in nb.prange(nthreads):
-                hi = bounds[t + 1]
-                m = 0.0
-                for i in range(bounds[t], hi):
-                    bx = 0.0
-                    by = 0.0
-                    bz = 0.0
-                    for u in range(nthreads):
-                        bx += buf[u, i, 0]
-                        by += buf[u, i, 1]
-                        bz += buf[u, i, 2]
-                        buf[u, i, 0] = 0.0
-                        buf[u, i, 1] = 0.0
-                        buf[u, i, 2] = 0.0
-                    if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
-                        continue
-                    for k in range(row[i], row[i + 1]):
-                        j = nbr[k]
-                        Jk = Jbar[k]
-                        # a self-image pair acts twice (as i → j and j → i)
-                        Jj = 2.0 * Jk if j == i else Jk
-                        bx += Jj * cur[j, 0]
-                        by += Jj * cur[j, 1]
-                        bz += Jj * cur[j, 2]
-                    if field is not None:
-                        field[i, 0] = bx
-                        field[i, 1] = by
-                        field[i, 2] = bz
+        for t in nb.prange(nthreads):
+            for i in range(bounds[t], bounds[t + 1]):
+                wx = cur[i, 0]
+                wy = cur[i, 1]
+                wz = cur[i, 2]
+                bx = 0.0
+                by = 0.0
+                bz = 0.0
+                for k in range(row[i], row[i + 1]):
+                    j = nbr[k]
+                    Jk = Jbar[k]
+                    bx += Jk * cur[j, 0]
+                    by += Jk * cur[j, 1]
+                    bz += Jk * cur[j, 2]
+                    buf[t, j, 0] += Jk * wx
+                    buf[t, j, 1] += Jk * wy
+                    buf[t, j, 2] += Jk * wz
+                buf[t, i, 0] += bx
+                buf[t, i, 1] += by
+                buf[t, i, 2] += bz
+        for t in nb.prange(nthreads):
+            m = 0.0
+            for i in range(atoms[t], atoms[t + 1]):
+                bx = 0.0
+                by = 0.0
+                bz = 0.0
+                for u in range(nthreads):
+                    bx += buf[u, i, 0]
+                    by += buf[u, i, 1]
+                    bz += buf[u, i, 2]
+                    buf[u, i, 0] = 0.0
+                    buf[u, i, 1] = 0.0
+                    buf[u, i, 2] = 0.0
+                if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+                    continue
+                if field is not None:
+                    field[i, 0] = bx
+                    field[i, 1] = by
+                    field[i, 2] = bz
+                if local:
                     d = _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde,
                                                   carry, carry_out, jacobi_rows)
-                    if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
-                        m = d
-                    wx = nxt[i, 0]
-                    wy = nxt[i, 1]
-                    wz = nxt[i, 2]
-                    for k in range(row[i], row[i + 1]):
-                        j = nbr[k]
-                        if j > i and j < hi:
-                            Jk = Jbar[k]
-                            buf[t, j, 0] += Jk * wx
-                            buf[t, j, 1] += Jk * wy
-                            buf[t, j, 2] += Jk * wz
-                change[t] = m
-        else:
-            for t in nb.prange(nthreads):
-                for i in range(bounds[t], bounds[t + 1]):
-                    wx = cur[i, 0]
-                    wy = cur[i, 1]
-                    wz = cur[i, 2]
-                    bx = 0.0
-                    by = 0.0
-                    bz = 0.0
-                    for k in range(row[i], row[i + 1]):
-                        j = nbr[k]
-                        Jk = Jbar[k]
-                        bx += Jk * cur[j, 0]
-                        by += Jk * cur[j, 1]
-                        bz += Jk * cur[j, 2]
-                        buf[t, j, 0] += Jk * wx
-                        buf[t, j, 1] += Jk * wy
-                        buf[t, j, 2] += Jk * wz
-                    buf[t, i, 0] += bx
-                    buf[t, i, 1] += by
-                    buf[t, i, 2] += bz
-            for t in nb.prange(nthreads):
-                m = 0.0
-                for i in range(atoms[t], atoms[t + 1]):
-                    bx = 0.0
-                    by = 0.0
-                    bz = 0.0
-                    for u in range(nthreads):
-                        bx += buf[u, i, 0]
-                        by += buf[u, i, 1]
-                        bz += buf[u, i, 2]
-                        buf[u, i, 0] = 0.0
-                        buf[u, i, 1] = 0.0
-                        buf[u, i, 2] = 0.0
-                    if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
-                        continue
-                    if field is not None:
-                        field[i, 0] = bx
-                        field[i, 1] = by
-                        field[i, 2] = bz
+                else:
                     d = _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
                                          carry_out)
-                    if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
-                        m = d
-                change[t] = m
+                if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
+                    m = d
+            change[t] = m
         delta = change.max()
         status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
                                                       first, tol, floor)
@@ -679,7 +580,7 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
             which = 1 - which
     if local:
         for t in nb.prange(nthreads):
-            _end_points(bounds[t], bounds[t + 1], s, nxt, stilde, carry, carry_out,
+            _end_points(atoms[t], atoms[t + 1], s, nxt, stilde, carry, carry_out,
                         jacobi_rows)
     if status < 0:
         return max_iter, delta, NOT_CONVERGED, which, measured, first
