@@ -403,3 +403,135 @@ def test_a_solve_stopped_by_a_non_finite_field_names_the_atom():
         dyn._raise_not_converged(st.ops, W, 3, float("nan"), dyn._scale(dyn.dt), True)
     with pytest.raises(SpinConvergenceError, match="did not converge"):
         dyn._raise_not_converged(st.ops, st.s, 50, 1e-3, dyn._scale(dyn.dt), True)
+
+
+def _full_fcc(dt_fs=1.0, n=3):
+    """fcc Co's exchange on the full pair list, frozen: (dyn, pairs, c)."""
+    dyn = CollectivePRK(fcc_cobalt(n), dt_fs * units.fs, lattice="frozen")
+    dyn.half_lists = False
+    dyn._sync()
+    pairs, c = dyn._state.ops[0].linear_pairs(False)
+    assert not pairs.half
+    return dyn, pairs, c
+
+
+def _simple_cubic_full(n):
+    """(row, nbr) of a periodic simple cubic lattice of n³ sites, nearest
+    neighbours, each pair both ways."""
+    idx = np.arange(n ** 3).reshape(n, n, n)
+    nbr = np.stack([np.roll(idx, shift, axis).ravel() for axis in range(3)
+                    for shift in (1, -1)], axis=1)
+    return 6 * np.arange(n ** 3 + 1), nbr.ravel().astype(np.int32)
+
+
+def test_greedy_colouring_pairs_no_two_atoms_of_one_colour():
+    """Every atom once in the colour order, no pair within one colour (fcc Co's
+    full list, 18 partners an atom, and a random graph with self-images); a
+    simple cubic lattice with an even number of cells takes two colours."""
+    from ase_spin.neighbors import greedy_colouring
+
+    _, pairs, _ = _full_fcc()
+    graphs = [(pairs.row, pairs.j)]
+    rng = np.random.default_rng(4)
+    n = 60
+    edges = {(int(a), int(b)) for a, b in rng.integers(0, n, size=(150, 2))}
+    both = sorted(edges | {(b, a) for a, b in edges})
+    row = np.searchsorted([a for a, _ in both], np.arange(n + 1))
+    graphs.append((row, np.array([b for _, b in both], dtype=np.int32)))
+    graphs.append(_simple_cubic_full(4))
+    for row, nbr in graphs:
+        order, starts = greedy_colouring(row, nbr)
+        n = len(row) - 1
+        assert np.array_equal(np.sort(order), np.arange(n))
+        colour = np.empty(n, dtype=int)
+        for c in range(len(starts) - 1):
+            colour[order[starts[c]:starts[c + 1]]] = c
+        i = np.repeat(np.arange(n), np.diff(row))
+        assert not np.any((colour[i] == colour[nbr]) & (i != nbr))
+    assert len(greedy_colouring(*_simple_cubic_full(4))[1]) - 1 == 2
+
+
+def test_colour_ordered_sweep_is_gauss_seidel():
+    """One locally exact sweep with a colouring: each spin solved exactly
+    (local_midpoint) in the field of the spins of earlier colours at their new
+    values and of later ones at the iterate's, checked spin by spin."""
+    from ase_spin.md import kernels
+
+    dyn, pairs, c = _full_fcc()
+    order, starts = pairs.colours()
+    assert len(starts) - 1 > 2
+    s = dyn._state.s
+    n = len(s)
+    rng = np.random.default_rng(1)
+    W0 = s + 0.05 * rng.normal(size=s.shape)
+    W0 /= np.linalg.norm(W0, axis=1)[:, None]
+    scale = dyn._scale(2 * units.fs)
+    W, Wn, st = W0.copy(), np.zeros_like(s), np.zeros_like(s)
+    its, _, status, which, *_ = kernels.midpoint_solve.serial(
+        1, pairs.row, pairs.j, c, s, W, Wn, st, scale, 3.0, 0.0, 1, 0.5, np.zeros_like(s),
+        np.zeros_like(s), 0, True, None, order, starts)  # "converged" after one sweep
+    assert its == 1 and status == kernels.CONVERGED
+    got = W if which == 0 else Wn
+    new = W0.copy()
+    for i in order:  # colour by colour
+        k = slice(pairs.row[i], pairs.row[i + 1])
+        b = (c[k][:, None] * new[pairs.j[k]]).sum(axis=0)
+        new[i] = local_midpoint(*s[i], *b, scale[i])[:3]
+    assert np.abs(got - new).max() < 1e-14
+    # the index order takes the iterate's W for every partner: not the same sweep
+    W, Wn = W0.copy(), np.zeros_like(s)
+    kernels.midpoint_solve.serial(1, pairs.row, pairs.j, c, s, W, Wn, np.zeros_like(s),
+                                  scale, 3.0, 0.0, 1, 0.5, np.zeros_like(s),
+                                  np.zeros_like(s), 0, True)
+    assert np.abs(Wn - new).max() > 1e-6
+
+
+@pytest.mark.parametrize("memory", [0, 3])
+def test_colour_ordered_solve_reaches_the_index_order_solution_in_fewer_sweeps(memory):
+    """fcc Co frozen at 3 fs: the colour-ordered solve reaches the index-order
+    solve's end points to its tolerance, in fewer sweeps, with or without
+    Anderson; in fixed chunks, so one chunk or three, serial or threaded,
+    give the same bits for three."""
+    from ase_spin.md import kernels
+
+    dyn, pairs, c = _full_fcc()
+    order, starts = pairs.colours()
+    s = dyn._state.s
+    scale = dyn._scale(3 * units.fs)
+
+    def run(chunks_, colours, threaded=False):
+        fn = kernels.midpoint_solve if threaded else kernels.midpoint_solve.serial
+        W, Wn, st = s.copy(), np.zeros_like(s), np.zeros_like(s)
+        its, _, status, *_ = fn(chunks_, pairs.row, pairs.j, c, s, W, Wn, st, scale, 1e-15,
+                                6.4e-14, 100, 0.5, np.zeros_like(s), np.zeros_like(s), memory,
+                                True, None, *colours)
+        assert status != kernels.NOT_CONVERGED
+        return its, st
+
+    its_index, ref = run(1, (None, None))
+    its_colour, got = run(1, (order, starts))
+    assert its_colour < its_index
+    assert np.abs(got - ref).max() < 1e-13
+    three = run(3, (order, starts))[1]
+    assert np.abs(three - ref).max() < 1e-13
+    assert np.array_equal(three, run(3, (order, starts), threaded=True)[1])
+
+
+def test_frozen_stages_take_colour_order_where_solves_are_long():
+    """kernels.next_coloured: a stage goes to colour order after an
+    index-order solve of 5 sweeps or more, back after a colour-ordered one of
+    2 or fewer; Jacobi sweeps change nothing. On a frozen lattice at 0.5 fs
+    (order 4) every stage is coloured after a few steps, at 0.05 fs (after
+    the first steps' long solves, with the predictor's history still short)
+    none; a moving lattice never."""
+    from ase_spin.md import kernels
+
+    assert kernels.next_coloured(False, True, 5) and not kernels.next_coloured(False, True, 4)
+    assert not kernels.next_coloured(True, True, 2) and kernels.next_coloured(True, True, 3)
+    assert kernels.next_coloured(True, False, 1) and not kernels.next_coloured(False, False, 9)
+    for dt, lattice, expected in [(0.5, "frozen", True), (0.05, "frozen", False),
+                                  (0.5, "moving", False)]:
+        dyn = CollectivePRK(fcc_cobalt(3), dt * units.fs, order=4, lattice=lattice)
+        dyn.run(12)
+        assert list(dyn._state.coloured) == [expected] * 5, (dt, lattice)
+        assert (dyn._state.full_ops is None) == (lattice == "moving")

@@ -230,6 +230,11 @@ class CollectivePRK(SpinLatticeDynamics):
         # per stage, whether its last solve in auto's first mode took one sweep
         # (kernels.auto_takes_local)
         st.one_sweep = np.zeros(len(self.gammas), dtype=np.bool_)
+        # per stage, whether its locally exact sweeps take the spins in colour
+        # order (a frozen lattice: kernels.next_coloured), and the spin
+        # operator on the full pair list they need (made when first needed)
+        st.coloured = np.zeros(len(self.gammas), dtype=np.bool_)
+        st.full_ops = None
 
     # -- the step ---------------------------------------------------------------
 
@@ -450,6 +455,7 @@ class CollectivePRK(SpinLatticeDynamics):
                 st.theta[stage] = theta if 0.0 <= theta < 1.0 else st.theta[stage]
                 if chooses:
                     st.one_sweep[stage] = its == 1
+                self._choose_order(stage, cheap, its)
                 if which == 1:
                     W, st.Wnext = st.Wnext, W
                 return W, stilde, its, moved, carry
@@ -470,12 +476,34 @@ class CollectivePRK(SpinLatticeDynamics):
         if solver is not None:
             its, delta, status, which, theta, moved = self._run_solver(
                 s, operators, W, h, stage, mean, scale, stilde, carry, tol, solver, self.max_iter)
+        self._choose_order(stage, solver or "anderson", its)
         st.theta[stage] = theta if 0.0 <= theta < 1.0 else st.theta[stage]
         if which == 1:
             W, st.Wnext = st.Wnext, W
         if status == kernels.NOT_CONVERGED:
             self._raise_not_converged(operators, W, its, delta, scale, mean)
         return W, stilde, its, moved, carry
+
+    def _choose_order(self, stage, solver, sweeps):
+        """After a solve of ``sweeps`` sweeps by ``solver`` at ``stage``: the
+        order of that stage's next locally exact sweeps (kernels.next_coloured;
+        a frozen lattice with one spin operator of linear pairs only)."""
+        if self.frozen:
+            st = self._state
+            st.coloured[stage] = kernels.next_coloured(st.coloured[stage], SOLVERS[solver][1],
+                                                       sweeps)
+
+    def _full_pairs(self, operators, mean):
+        """(pairs, c) of ``operators``' one linear-pairs operator on the full
+        pair list, with its colouring: the operator itself if it is on one,
+        else its twin made once (a frozen lattice: the pairs do not change)."""
+        pairs, c = operators[0].linear_pairs(mean)
+        if not pairs.half:
+            return pairs, c
+        st = self._state
+        if st.full_ops is None:
+            st.full_ops = self.ev.spin_operators(st.q, half=False)
+        return st.full_ops[0].linear_pairs(mean)
 
     def _midpoint_field_buffer(self):
         """An (n, 3) buffer for a solve's midpoint fields (made once, zero: the
@@ -502,6 +530,12 @@ class CollectivePRK(SpinLatticeDynamics):
                 min(1.0, 2.0 * st.theta[stage]), st.carry_s, carry)
         if len(operators) == 1 and hasattr(operators[0], "linear_pairs"):
             # B̄_i = Σ_j c_ij W_j: the whole iteration in one compiled loop
+            if local and st.coloured[stage]:  # (a frozen lattice)
+                pairs, c = self._full_pairs(operators, mean)
+                if st.field_out is not None:
+                    st.field_filled = True
+                return kernels.midpoint_solve(threads.count(), pairs.row, pairs.j, c, *args,
+                                              memory, local, st.field_out, *pairs.colours())
             pairs, c = operators[0].linear_pairs(mean)
             solve = kernels.midpoint_solve_half if pairs.half else kernels.midpoint_solve
             if st.field_out is None:

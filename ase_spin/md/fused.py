@@ -312,7 +312,8 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
 
 def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_iter, theta,
                 memory, local, switch, adaptive, one_sweep, orders, ring, counts, heads, probe,
-                kept, kept_n, row, nbr, c, coefficients):
+                kept, kept_n, row, nbr, c, coefficients, coloured, full_row, full_nbr, full_c,
+                order, starts):
     """:func:`_run` for a frozen lattice (CollectivePRK's spins-only step,
     ``_substep`` with ``lattice="frozen"``) with one spin operator of the form
     B_i = Σ_j c_k W_j (``linear_pairs``: row, nbr, c): per stage the
@@ -320,8 +321,13 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
     twin of kernels.midpoint_solve_half or midpoint_solve, bound per pair-list
     kind) and the predictor's order (its difference tables ``kept``,
     ``kept_n`` as in :func:`_run`) and increment, the same calls as the
-    Python path with the same arguments. Steps are taken whole or not at all;
-    a solve that fails or contracts by more than ``switch`` per sweep stops
+    Python path with the same arguments; a stage marked in ``coloured``
+    solves with locally exact sweeps in colour order (``solve_full``,
+    kernels.midpoint_solve's serial twin, over the full list ``full_row``,
+    ``full_nbr``, ``full_c`` with its colouring ``order``, ``starts``; the
+    marks kept by kernels.next_coloured). Steps are taken whole or not at all;
+    a solve that fails or contracts by more than ``switch`` per sweep, or a
+    stage to be coloured without a full list given (empty ``order``), stops
     the block before its step. Returns (steps done, s, carry of s, the spare W
     buffer, sweeps in all, sweeps of the last step)."""
     nstages = gammas.shape[0]
@@ -330,6 +336,7 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
     new_theta = theta.copy()
     new_orders = orders.copy()
     new_one_sweep = one_sweep.copy()
+    new_coloured = coloured.copy()
     done = 0
     sweeps = 0
     last_sweeps = 0
@@ -349,10 +356,19 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
             use_local = local[stage]
             if adaptive[stage]:
                 use_local = kernels.auto_takes_local(one_sweep[stage], theta[stage])
-            its, delta, status, which, measured, moved = solve(  # noqa: F821
-                1, row, nbr, c, s, W, Wnext, stilde, scales[stage], tol, floor,
-                max_iter[stage], min(1.0, 2.0 * theta[stage]), carry_s, carry, memory[stage],
-                use_local)
+            if use_local and coloured[stage]:
+                if len(order) == 0:  # no full list here: the general path makes it
+                    failed = True
+                    break
+                its, delta, status, which, measured, moved = solve_full(  # noqa: F821
+                    1, full_row, full_nbr, full_c, s, W, Wnext, stilde, scales[stage], tol,
+                    floor, max_iter[stage], min(1.0, 2.0 * theta[stage]), carry_s, carry,
+                    memory[stage], use_local, None, order, starts)
+            else:
+                its, delta, status, which, measured, moved = solve(  # noqa: F821
+                    1, row, nbr, c, s, W, Wnext, stilde, scales[stage], tol, floor,
+                    max_iter[stage], min(1.0, 2.0 * theta[stage]), carry_s, carry,
+                    memory[stage], use_local)
             if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch[stage]):
                 failed = True
                 break
@@ -360,6 +376,7 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
                 new_theta[stage] = measured
             if adaptive[stage]:
                 new_one_sweep[stage] = its == 1
+            new_coloured[stage] = kernels.next_coloured(coloured[stage], use_local, its)
             if which == 1:
                 W, Wnext = Wnext, W
             increment = W - s
@@ -378,6 +395,7 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
             theta[stage] = new_theta[stage]
             orders[stage] = new_orders[stage]
             one_sweep[stage] = new_one_sweep[stage]
+            coloured[stage] = new_coloured[stage]
             heads[stage] = (heads[stage] + 1) % depth
             ring[stage, heads[stage]] = increments[stage]
             counts[stage] = min(counts[stage] + 1, depth)
@@ -807,6 +825,8 @@ def collective_block(dyn, steps):
 
 
 _frozen_runners = {}
+#: Stands for the full pair list before it is made (see _run_frozen).
+_NO_FULL_LIST = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int32), np.zeros(0))
 
 
 def _frozen_runner(half):
@@ -816,7 +836,8 @@ def _frozen_runner(half):
     if fn is None:
         solve = kernels.midpoint_solve_half if half else kernels.midpoint_solve
         fn = _frozen_runners[half] = compile_with(
-            _run_frozen, {"solve": solve.serial, "extrapolate": kernels._extrapolate.serial,
+            _run_frozen, {"solve": solve.serial, "solve_full": kernels.midpoint_solve.serial,
+                          "extrapolate": kernels._extrapolate.serial,
                           "best_order": kernels._best_order},
             "half" if half else "full")
     return fn
@@ -829,6 +850,13 @@ def _frozen_block(dyn, steps):
         return 0, 0, 0, 0
     pairs, c = st.ops[0].linear_pairs(False)
     run = _frozen_runner(bool(pairs.half))
+    if st.full_ops is not None or not pairs.half:
+        full, full_c = dyn._full_pairs(st.ops, False)
+        order, starts = full.colours()
+        full_row, full_nbr = full.row, full.j
+    else:  # made by the general path when a stage first needs it
+        full_row, full_nbr, full_c = _NO_FULL_LIST
+        order = starts = _NO_FULL_LIST[0]
     if not _pays(dyn, run):
         return 0, 0, 0, 0
     gammas, scales, memory, local, max_iter, switch, adaptive = _stage_arrays(dyn)
@@ -838,7 +866,8 @@ def _frozen_block(dyn, steps):
     done, s, carry_s, Wnext, sweeps, last_sweeps = run(
         steps, st.s, dyn.dt, gammas, scales, st.carry_s, st.Wnext, dyn.tol, 64.0 * dyn.tol,
         max_iter, theta, memory, local, switch, adaptive, st.one_sweep, orders, ring, counts,
-        heads, st.probe, st.kept, st.kept_n, pairs.row, pairs.j, c, kernels._COEFFICIENTS)
+        heads, st.probe, st.kept, st.kept_n, pairs.row, pairs.j, c, kernels._COEFFICIENTS,
+        st.coloured, full_row, full_nbr, full_c, order, starts)
     if done:
         st.s, st.carry_s, st.Wnext = s, carry_s, Wnext
         st.theta = theta.tolist()
