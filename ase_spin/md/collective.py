@@ -230,10 +230,12 @@ class CollectivePRK(SpinLatticeDynamics):
         # per stage, whether its last solve in auto's first mode took one sweep
         # (kernels.auto_takes_local)
         st.one_sweep = np.zeros(len(self.gammas), dtype=np.bool_)
-        # per stage, whether its locally exact sweeps take the spins in colour
-        # order (a frozen lattice: kernels.next_coloured), and the spin
-        # operator on the full pair list they need (made when first needed)
-        st.coloured = np.zeros(len(self.gammas), dtype=np.bool_)
+        # per stage, the order of its locally exact sweeps and its index-order
+        # sweeps' contraction (a frozen lattice: kernels.next_sweep_order), and
+        # the spin operator on the full pair list that colour order needs
+        # (made when first needed)
+        st.sweep_order = np.zeros(len(self.gammas), dtype=np.int64)
+        st.theta_index = np.full(len(self.gammas), -1.0)
         st.full_ops = None
 
     # -- the step ---------------------------------------------------------------
@@ -455,7 +457,7 @@ class CollectivePRK(SpinLatticeDynamics):
                 st.theta[stage] = theta if 0.0 <= theta < 1.0 else st.theta[stage]
                 if chooses:
                     st.one_sweep[stage] = its == 1
-                self._choose_order(stage, cheap, its)
+                self._choose_order(stage, cheap, its, theta)
                 if which == 1:
                     W, st.Wnext = st.Wnext, W
                 return W, stilde, its, moved, carry
@@ -476,7 +478,7 @@ class CollectivePRK(SpinLatticeDynamics):
         if solver is not None:
             its, delta, status, which, theta, moved = self._run_solver(
                 s, operators, W, h, stage, mean, scale, stilde, carry, tol, solver, self.max_iter)
-        self._choose_order(stage, solver or "anderson", its)
+        self._choose_order(stage, solver or "anderson", its, theta)
         st.theta[stage] = theta if 0.0 <= theta < 1.0 else st.theta[stage]
         if which == 1:
             W, st.Wnext = st.Wnext, W
@@ -484,14 +486,16 @@ class CollectivePRK(SpinLatticeDynamics):
             self._raise_not_converged(operators, W, its, delta, scale, mean)
         return W, stilde, its, moved, carry
 
-    def _choose_order(self, stage, solver, sweeps):
-        """After a solve of ``sweeps`` sweeps by ``solver`` at ``stage``: the
-        order of that stage's next locally exact sweeps (kernels.next_coloured;
-        a frozen lattice with one spin operator of linear pairs only)."""
+    def _choose_order(self, stage, solver, sweeps, measured):
+        """After a solve at ``stage`` by ``solver`` (``sweeps`` sweeps, contraction
+        ``measured`` or −1): the order of that stage's next locally exact
+        sweeps (kernels.next_sweep_order; a frozen lattice, used with one spin
+        operator of linear pairs)."""
         if self.frozen:
             st = self._state
-            st.coloured[stage] = kernels.next_coloured(st.coloured[stage], SOLVERS[solver][1],
-                                                       sweeps)
+            st.sweep_order[stage], st.theta_index[stage] = kernels.next_sweep_order(
+                st.sweep_order[stage], SOLVERS[solver][1], sweeps, measured,
+                st.theta_index[stage])
 
     def _full_pairs(self, operators, mean):
         """(pairs, c) of ``operators``' one linear-pairs operator on the full
@@ -530,7 +534,7 @@ class CollectivePRK(SpinLatticeDynamics):
                 min(1.0, 2.0 * st.theta[stage]), st.carry_s, carry)
         if len(operators) == 1 and hasattr(operators[0], "linear_pairs"):
             # B̄_i = Σ_j c_ij W_j: the whole iteration in one compiled loop
-            if local and st.coloured[stage]:  # (a frozen lattice)
+            if local and st.sweep_order[stage] == kernels.COLOUR_ORDER:  # (frozen)
                 pairs, c = self._full_pairs(operators, mean)
                 if st.field_out is not None:
                     st.field_filled = True

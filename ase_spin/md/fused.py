@@ -312,8 +312,8 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
 
 def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_iter, theta,
                 memory, local, switch, adaptive, one_sweep, orders, ring, counts, heads, probe,
-                kept, kept_n, row, nbr, c, coefficients, coloured, full_row, full_nbr, full_c,
-                order, starts):
+                kept, kept_n, row, nbr, c, coefficients, sweep_order, theta_index, full_row,
+                full_nbr, full_c, order, starts):
     """:func:`_run` for a frozen lattice (CollectivePRK's spins-only step,
     ``_substep`` with ``lattice="frozen"``) with one spin operator of the form
     B_i = Σ_j c_k W_j (``linear_pairs``: row, nbr, c): per stage the
@@ -321,11 +321,12 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
     twin of kernels.midpoint_solve_half or midpoint_solve, bound per pair-list
     kind) and the predictor's order (its difference tables ``kept``,
     ``kept_n`` as in :func:`_run`) and increment, the same calls as the
-    Python path with the same arguments; a stage marked in ``coloured``
-    solves with locally exact sweeps in colour order (``solve_full``,
-    kernels.midpoint_solve's serial twin, over the full list ``full_row``,
-    ``full_nbr``, ``full_c`` with its colouring ``order``, ``starts``; the
-    marks kept by kernels.next_coloured). Steps are taken whole or not at all;
+    Python path with the same arguments; a stage whose ``sweep_order`` is
+    colour order solves with locally exact sweeps in that order
+    (``solve_full``, kernels.midpoint_solve's serial twin, over the full list
+    ``full_row``, ``full_nbr``, ``full_c`` with its colouring ``order``,
+    ``starts``; ``sweep_order`` and ``theta_index`` kept by
+    kernels.next_sweep_order). Steps are taken whole or not at all;
     a solve that fails or contracts by more than ``switch`` per sweep, or a
     stage to be coloured without a full list given (empty ``order``), stops
     the block before its step. Returns (steps done, s, carry of s, the spare W
@@ -336,7 +337,8 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
     new_theta = theta.copy()
     new_orders = orders.copy()
     new_one_sweep = one_sweep.copy()
-    new_coloured = coloured.copy()
+    new_sweep_order = sweep_order.copy()
+    new_theta_index = theta_index.copy()
     done = 0
     sweeps = 0
     last_sweeps = 0
@@ -356,7 +358,7 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
             use_local = local[stage]
             if adaptive[stage]:
                 use_local = kernels.auto_takes_local(one_sweep[stage], theta[stage])
-            if use_local and coloured[stage]:
+            if use_local and sweep_order[stage] == kernels.COLOUR_ORDER:
                 if len(order) == 0:  # no full list here: the general path makes it
                     failed = True
                     break
@@ -376,7 +378,8 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
                 new_theta[stage] = measured
             if adaptive[stage]:
                 new_one_sweep[stage] = its == 1
-            new_coloured[stage] = kernels.next_coloured(coloured[stage], use_local, its)
+            new_sweep_order[stage], new_theta_index[stage] = kernels.next_sweep_order(
+                sweep_order[stage], use_local, its, measured, theta_index[stage])
             if which == 1:
                 W, Wnext = Wnext, W
             increment = W - s
@@ -395,7 +398,8 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
             theta[stage] = new_theta[stage]
             orders[stage] = new_orders[stage]
             one_sweep[stage] = new_one_sweep[stage]
-            coloured[stage] = new_coloured[stage]
+            sweep_order[stage] = new_sweep_order[stage]
+            theta_index[stage] = new_theta_index[stage]
             heads[stage] = (heads[stage] + 1) % depth
             ring[stage, heads[stage]] = increments[stage]
             counts[stage] = min(counts[stage] + 1, depth)
@@ -867,7 +871,7 @@ def _frozen_block(dyn, steps):
         steps, st.s, dyn.dt, gammas, scales, st.carry_s, st.Wnext, dyn.tol, 64.0 * dyn.tol,
         max_iter, theta, memory, local, switch, adaptive, st.one_sweep, orders, ring, counts,
         heads, st.probe, st.kept, st.kept_n, pairs.row, pairs.j, c, kernels._COEFFICIENTS,
-        st.coloured, full_row, full_nbr, full_c, order, starts)
+        st.sweep_order, st.theta_index, full_row, full_nbr, full_c, order, starts)
     if done:
         st.s, st.carry_s, st.Wnext = s, carry_s, Wnext
         st.theta = theta.tolist()

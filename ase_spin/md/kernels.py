@@ -141,32 +141,50 @@ def local_midpoint(px, py, pz, bx, by, bz, c):
             g * (pz + a * (px * by - py * bx) + f * bz), True)
 
 
-#: On a frozen lattice, a stage whose locally exact solve in index order
-#: took at least this many sweeps makes its next ones in colour order
-#: (:func:`next_coloured`), ...
+#: The order of a frozen lattice's locally exact sweeps, per stage
+#: (:func:`next_sweep_order`): the index order; the colour order; the index
+#: order for good (the colour order tried and found not to pay).
+INDEX_ORDER, COLOUR_ORDER, INDEX_ORDER_KEPT = 0, 1, 2
+#: A stage whose locally exact solve in index order took at least this many
+#: sweeps tries the colour order ...
 COLOUR_FROM_SWEEPS = 5
 #: ... and goes back to index order after a colour-ordered solve of at most
-#: this many.
-INDEX_ORDER_UP_TO_SWEEPS = 2
+#: this many ...
+INDEX_ORDER_UP_TO_SWEEPS = 3
+#: ... or for good once a colour-ordered sweep contracts by less than the
+#: index order's contraction to this power: what a colour-ordered sweep costs
+#: in index-order sweeps, with a margin (a full list, and a pass per colour).
+COLOUR_PAYS_POWER = 1.3
 
 
 @nb.njit(cache=True, inline="always")
-def next_coloured(coloured, local, sweeps):
-    """Whether a frozen lattice's stage makes its next locally exact solve in
-    colour order (on the full pair list, :func:`midpoint_solve` with a
-    colouring), given whether its last solve was (``coloured``), whether
-    that solve's sweeps were locally exact (``local``; Jacobi sweeps say
-    nothing) and its sweeps. A colour-ordered sweep costs more than one in
-    index order over the half list (a full list, and a pass per colour) but
-    contracts about as much as two, so it pays only where a solve takes many
-    sweeps; where the predictor leaves a solve two or three sweeps whatever
-    their order, it does not. One function for the Python and the compiled
-    paths."""
+def next_sweep_order(order, local, sweeps, measured, theta_index):
+    """After a solve at a frozen lattice's stage: (the order of its next
+    locally exact sweeps, the contraction of its index-order sweeps), from the
+    order the solve took (``order``: :data:`INDEX_ORDER`, :data:`COLOUR_ORDER`
+    or :data:`INDEX_ORDER_KEPT`), whether its sweeps were locally exact
+    (``local``; Jacobi sweeps say nothing), their number, the contraction
+    they showed (``measured``, −1 if none) and the index order's last
+    (``theta_index``, −1 if none yet). Colour order takes the earlier
+    colours' new W (:func:`midpoint_solve`), about two index-order sweeps'
+    contraction on a two-colourable lattice, far less on others; it is tried
+    after a long index-order solve and kept while it contracts by more than
+    the index order to the power :data:`COLOUR_PAYS_POWER`. One function for
+    the Python and the compiled paths."""
     if not local:
-        return coloured
-    if coloured:
-        return sweeps > INDEX_ORDER_UP_TO_SWEEPS
-    return sweeps >= COLOUR_FROM_SWEEPS
+        return order, theta_index
+    if order == COLOUR_ORDER:
+        if sweeps <= INDEX_ORDER_UP_TO_SWEEPS:
+            return INDEX_ORDER, theta_index
+        if (0.0 < measured < 1.0 and 0.0 < theta_index < 1.0
+                and not measured < theta_index ** COLOUR_PAYS_POWER):
+            return INDEX_ORDER_KEPT, theta_index
+        return COLOUR_ORDER, theta_index
+    if 0.0 <= measured < 1.0:
+        theta_index = measured
+    if order == INDEX_ORDER and sweeps >= COLOUR_FROM_SWEEPS:
+        return COLOUR_ORDER, theta_index
+    return order, theta_index
 
 
 #: "auto" takes a Jacobi sweep rather than a locally exact one for a solve that
