@@ -525,7 +525,7 @@ def test_frozen_stages_take_colour_order_where_it_pays():
     nothing. fcc Co frozen: at 2 fs (order 4) every stage keeps colour order
     (contraction ~0.05-0.1 against ~0.2-0.3), at 0.05 fs none (two sweeps a
     solve, once the predictor has its history); a moving lattice never tries
-    it."""
+    it, nor a frozen one of threaded size (4000 atoms)."""
     from ase_spin.md import kernels
 
     INDEX, COLOUR, KEPT = kernels.INDEX_ORDER, kernels.COLOUR_ORDER, kernels.INDEX_ORDER_KEPT
@@ -542,3 +542,6 @@ def test_frozen_stages_take_colour_order_where_it_pays():
         dyn.run(12)
         assert set(dyn._state.sweep_order) <= expected, (dt, lattice)
         assert (dyn._state.full_ops is None) == (lattice == "moving")
+    dyn = CollectivePRK(fcc_cobalt(10), 2.0 * units.fs, order=4, lattice="frozen")
+    dyn.run(3)
+    assert set(dyn._state.sweep_order) == {INDEX} and dyn._state.full_ops is None

@@ -490,8 +490,11 @@ class CollectivePRK(SpinLatticeDynamics):
         """After a solve at ``stage`` by ``solver`` (``sweeps`` sweeps, contraction
         ``measured`` or −1): the order of that stage's next locally exact
         sweeps (kernels.next_sweep_order; a frozen lattice, used with one spin
-        operator of linear pairs)."""
-        if self.frozen:
+        operator of linear pairs). Only in a system small enough for serial
+        sweeps (threads.SERIAL_BELOW): threaded, each colour is a parallel
+        region of its own, and a colour-ordered sweep costs too much more than
+        one in index order (docs/benchmarks.md, "Colour-ordered sweeps")."""
+        if self.frozen and len(self._state.s) < threads.SERIAL_BELOW:
             st = self._state
             st.sweep_order[stage], st.theta_index[stage] = kernels.next_sweep_order(
                 st.sweep_order[stage], SOLVERS[solver][1], sweeps, measured,
