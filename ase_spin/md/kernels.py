@@ -281,6 +281,36 @@ def _end_points(lo, hi, s, W, stilde, carry, carry_out, jacobi_rows):
 
 
 @nb.njit(cache=True, inline="always")
+def _row_update(i, row, nbr, Jbar, source, s, cur, nxt, scale, stilde, carry, carry_out,
+                jacobi_rows, field, local):
+    """One spin's update in a sweep over a full pair list: its midpoint field
+    B̄_i = Σ_k J̄_k source_j over its row's pairs k = (i → j) (``source``: the
+    iterate W, or in colour order the sweep's output, where earlier colours
+    are already new), written to ``field`` if given, then the locally exact
+    (``local``) or the Jacobi update of W_i from ``cur`` into ``nxt``.
+    Returns max |ΔW_i| over components (0 for a row without spin)."""
+    if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+        return 0.0
+    bx = 0.0
+    by = 0.0
+    bz = 0.0
+    for k in range(row[i], row[i + 1]):
+        j = nbr[k]
+        Jk = Jbar[k]
+        bx += Jk * source[j, 0]
+        by += Jk * source[j, 1]
+        bz += Jk * source[j, 2]
+    if field is not None:
+        field[i, 0] = bx
+        field[i, 1] = by
+        field[i, 2] = bz
+    if local:
+        return _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
+                                         carry_out, jacobi_rows)
+    return _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out)
+
+
+@nb.njit(cache=True, inline="always")
 def after_sweep(it, delta, previous, theta, measured, first, tol, floor):
     """Bookkeeping after sweep ``it`` with change ``delta`` (see :func:`midpoint_solve`):
     (status, or -1 to go on; contraction θ in use; θ measured, from the ratio of
@@ -523,24 +553,8 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
                 for t in nb.prange(nthreads):
                     m = change[t]
                     for idx in range(a + (size * t) // nthreads, a + (size * (t + 1)) // nthreads):
-                        i = by_colour[idx]
-                        if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
-                            continue
-                        bx = 0.0
-                        by = 0.0
-                        bz = 0.0
-                        for k in range(row[i], row[i + 1]):
-                            j = nbr[k]
-                            Jk = Jbar[k]
-                            bx += Jk * nxt[j, 0]
-                            by += Jk * nxt[j, 1]
-                            bz += Jk * nxt[j, 2]
-                        if field is not None:
-                            field[i, 0] = bx
-                            field[i, 1] = by
-                            field[i, 2] = bz
-                        d = _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale,
-                                                      stilde, carry, carry_out, jacobi_rows)
+                        d = _row_update(by_colour[idx], row, nbr, Jbar, nxt, s, cur, nxt, scale,
+                                        stilde, carry, carry_out, jacobi_rows, field, True)
                         if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
                             m = d
                     change[t] = m
@@ -548,27 +562,8 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
             for t in nb.prange(nthreads):
                 m = 0.0
                 for i in range(bounds[t], bounds[t + 1]):
-                    if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
-                        continue
-                    bx = 0.0
-                    by = 0.0
-                    bz = 0.0
-                    for k in range(row[i], row[i + 1]):
-                        j = nbr[k]
-                        Jk = Jbar[k]
-                        bx += Jk * cur[j, 0]
-                        by += Jk * cur[j, 1]
-                        bz += Jk * cur[j, 2]
-                    if field is not None:
-                        field[i, 0] = bx
-                        field[i, 1] = by
-                        field[i, 2] = bz
-                    if local:
-                        d = _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale,
-                                                      stilde, carry, carry_out, jacobi_rows)
-                    else:
-                        d = _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
-                                             carry_out)
+                    d = _row_update(i, row, nbr, Jbar, cur, s, cur, nxt, scale, stilde, carry,
+                                    carry_out, jacobi_rows, field, local)
                     if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
                         m = d
                 change[t] = m
