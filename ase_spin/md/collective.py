@@ -491,9 +491,10 @@ class CollectivePRK(SpinLatticeDynamics):
         ``measured`` or −1): the order of that stage's next locally exact
         sweeps (kernels.next_sweep_order; a frozen lattice, used with one spin
         operator of linear pairs). Only in a system small enough for serial
-        sweeps (threads.SERIAL_BELOW): threaded, each colour is a parallel
-        region of its own, and a colour-ordered sweep costs too much more than
-        one in index order (docs/benchmarks.md, "Colour-ordered sweeps")."""
+        sweeps (threads.SERIAL_BELOW): there a colour-ordered sweep (serial)
+        costs about what an index-order one does; threaded, each colour would
+        be a parallel region of its own, and it costs more than its fewer
+        sweeps save (docs/benchmarks.md, "Colour-ordered sweeps")."""
         if self.frozen and len(self._state.s) < threads.SERIAL_BELOW:
             st = self._state
             st.sweep_order[stage], st.theta_index[stage] = kernels.next_sweep_order(

@@ -310,6 +310,28 @@ def _row_update(i, row, nbr, Jbar, source, s, cur, nxt, scale, stilde, carry, ca
     return _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out)
 
 
+@nb.njit(cache=True)
+def _coloured_sweep(row, nbr, Jbar, s, cur, nxt, scale, stilde, carry, carry_out, jacobi_rows,
+                    field, order, starts):
+    """A locally exact sweep in colour order (:func:`midpoint_solve`), serial:
+    g(W) made in place in ``nxt``, where the colours before c are new and the
+    rest still W's (copied in first), colour c's spins ``order[starts[c]:
+    starts[c + 1]]`` each in its field there. One colour's spins are not
+    paired, so their order does not matter: the same bits however the rows
+    were split. Returns max |ΔW| over all components."""
+    for i in range(s.shape[0]):
+        nxt[i, 0] = cur[i, 0]
+        nxt[i, 1] = cur[i, 1]
+        nxt[i, 2] = cur[i, 2]
+    m = 0.0
+    for idx in range(starts[len(starts) - 1]):
+        d = _row_update(order[idx], row, nbr, Jbar, nxt, s, cur, nxt, scale, stilde, carry,
+                        carry_out, jacobi_rows, field, True)
+        if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
+            m = d
+    return m
+
+
 @nb.njit(cache=True, inline="always")
 def after_sweep(it, delta, previous, theta, measured, first, tol, floor):
     """Bookkeeping after sweep ``it`` with change ``delta`` (see :func:`midpoint_solve`):
@@ -477,16 +499,16 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     iteration may not; the end points made once, after the last sweep:
     :func:`_end_points`). With a colouring (``order``, ``starts``: the atoms
     by colour, no two of one colour paired; neighbors.greedy_colouring) the
-    locally exact sweep takes the colours in turn (Gauss–Seidel order), spin
-    i of colour c in the field
+    locally exact sweep takes the colours in turn (Gauss–Seidel order,
+    :func:`_coloured_sweep`, serial: the integrators take it in systems of
+    serial size only), spin i of colour c in the field
 
     .. math:: \bar{\mathbf B}_i = \sum_{j:\, c_j < c} \bar J_{ij} g(W)_j
               + \sum_{j:\, c_j > c} \bar J_{ij} \mathbf W_j,
 
     which contracts about as fast as two sweeps in index order (the error is
     squared on a two-colourable lattice); the spins of one colour are
-    independent, so they are solved side by side (in fixed chunks: the same
-    bits for any number of threads). Else the Jacobi map g(W) = (2 s + c W × B̄(W)) /
+    independent, so they are solved side by side. Else the Jacobi map g(W) = (2 s + c W × B̄(W)) /
     |2 s + c W × B̄(W)|, which contracts only while c|B̄| ≲ 1. With ``memory``
     m > 0, the next iterate is the Anderson combination of the last m + 1
     sweeps (:func:`anderson_mix`); else g(W). Rows with s_i = 0 (non-magnetic atoms) are skipped.
@@ -539,25 +561,9 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     coloured = local and len(colour_starts) > 1
     for it in range(1, max_iter + 1):
         if coloured:
-            # g(W) made in place in nxt: the colours before c are new there,
-            # the rest still W's (copied in first)
-            for t in nb.prange(nthreads):
-                for i in range((n * t) // nthreads, (n * (t + 1)) // nthreads):
-                    nxt[i, 0] = cur[i, 0]
-                    nxt[i, 1] = cur[i, 1]
-                    nxt[i, 2] = cur[i, 2]
-                change[t] = 0.0
-            for colour in range(len(colour_starts) - 1):
-                a = colour_starts[colour]
-                size = colour_starts[colour + 1] - a
-                for t in nb.prange(nthreads):
-                    m = change[t]
-                    for idx in range(a + (size * t) // nthreads, a + (size * (t + 1)) // nthreads):
-                        d = _row_update(by_colour[idx], row, nbr, Jbar, nxt, s, cur, nxt, scale,
-                                        stilde, carry, carry_out, jacobi_rows, field, True)
-                        if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
-                            m = d
-                    change[t] = m
+            change[:] = 0.0
+            change[0] = _coloured_sweep(row, nbr, Jbar, s, cur, nxt, scale, stilde, carry,
+                                        carry_out, jacobi_rows, field, by_colour, colour_starts)
         else:
             for t in nb.prange(nthreads):
                 m = 0.0
