@@ -281,16 +281,8 @@ def _end_points(lo, hi, s, W, stilde, carry, carry_out, jacobi_rows):
 
 
 @nb.njit(cache=True, inline="always")
-def _row_update(i, row, nbr, Jbar, source, s, cur, nxt, scale, stilde, carry, carry_out,
-                jacobi_rows, field, local):
-    """One spin's update in a sweep over a full pair list: its midpoint field
-    B̄_i = Σ_k J̄_k source_j over its row's pairs k = (i → j) (``source``: the
-    iterate W, or in colour order the sweep's output, where earlier colours
-    are already new), written to ``field`` if given, then the locally exact
-    (``local``) or the Jacobi update of W_i from ``cur`` into ``nxt``.
-    Returns max |ΔW_i| over components (0 for a row without spin)."""
-    if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
-        return 0.0
+def _pair_field(i, row, nbr, Jbar, source):
+    """B̄_i = Σ_k J̄_k source_j over row i's pairs k = (i → j) of a full list."""
     bx = 0.0
     by = 0.0
     bz = 0.0
@@ -300,14 +292,7 @@ def _row_update(i, row, nbr, Jbar, source, s, cur, nxt, scale, stilde, carry, ca
         bx += Jk * source[j, 0]
         by += Jk * source[j, 1]
         bz += Jk * source[j, 2]
-    if field is not None:
-        field[i, 0] = bx
-        field[i, 1] = by
-        field[i, 2] = bz
-    if local:
-        return _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
-                                         carry_out, jacobi_rows)
-    return _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out)
+    return bx, by, bz
 
 
 @nb.njit(cache=True)
@@ -325,8 +310,16 @@ def _coloured_sweep(row, nbr, Jbar, s, cur, nxt, scale, stilde, carry, carry_out
         nxt[i, 2] = cur[i, 2]
     m = 0.0
     for idx in range(starts[len(starts) - 1]):
-        d = _row_update(order[idx], row, nbr, Jbar, nxt, s, cur, nxt, scale, stilde, carry,
-                        carry_out, jacobi_rows, field, True)
+        i = order[idx]
+        if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+            continue
+        bx, by, bz = _pair_field(i, row, nbr, Jbar, nxt)
+        if field is not None:
+            field[i, 0] = bx
+            field[i, 1] = by
+            field[i, 2] = bz
+        d = _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
+                                      carry_out, jacobi_rows)
         if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
             m = d
     return m
@@ -568,8 +561,19 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
             for t in nb.prange(nthreads):
                 m = 0.0
                 for i in range(bounds[t], bounds[t + 1]):
-                    d = _row_update(i, row, nbr, Jbar, cur, s, cur, nxt, scale, stilde, carry,
-                                    carry_out, jacobi_rows, field, local)
+                    if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+                        continue
+                    bx, by, bz = _pair_field(i, row, nbr, Jbar, cur)
+                    if field is not None:
+                        field[i, 0] = bx
+                        field[i, 1] = by
+                        field[i, 2] = bz
+                    if local:
+                        d = _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale,
+                                                      stilde, carry, carry_out, jacobi_rows)
+                    else:
+                        d = _midpoint_update(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
+                                             carry_out)
                     if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
                         m = d
                 change[t] = m
