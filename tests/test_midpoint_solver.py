@@ -469,7 +469,7 @@ def test_colour_ordered_sweep_is_gauss_seidel():
     W, Wn, st = W0.copy(), np.zeros_like(s), np.zeros_like(s)
     its, _, status, which, *_ = kernels.midpoint_solve.serial(
         1, pairs.row, pairs.j, c, s, W, Wn, st, scale, 3.0, 0.0, 1, 0.5, np.zeros_like(s),
-        np.zeros_like(s), 0, True, None, order, starts)  # "converged" after one sweep
+        np.zeros_like(s), 0, True, None, order)  # "converged" after one sweep
     assert its == 1 and status == kernels.CONVERGED
     got = W if which == 0 else Wn
     new = W0.copy()
@@ -500,7 +500,7 @@ def _colour_solve(chunks_, colours, memory, dt_fs=3.0):
     if colours is None:  # (the arguments left out, as the callers do)
         its, _, status, *_ = fn(*args)
     else:
-        its, _, status, *_ = fn(*args, None, *pairs.colours())
+        its, _, status, *_ = fn(*args, None, pairs.colours()[0])
     assert status != kernels.NOT_CONVERGED
     return its, st
 

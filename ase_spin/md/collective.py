@@ -543,7 +543,7 @@ class CollectivePRK(SpinLatticeDynamics):
                 if st.field_out is not None:
                     st.field_filled = True
                 return kernels.midpoint_solve(threads.count(), pairs.row, pairs.j, c, *args,
-                                              memory, local, st.field_out, *pairs.colours())
+                                              memory, local, st.field_out, pairs.colours()[0])
             pairs, c = operators[0].linear_pairs(mean)
             solve = kernels.midpoint_solve_half if pairs.half else kernels.midpoint_solve
             if st.field_out is None:

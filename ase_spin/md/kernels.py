@@ -297,20 +297,19 @@ def _pair_field(i, row, nbr, Jbar, source):
 
 @nb.njit(cache=True)
 def _coloured_sweep(row, nbr, Jbar, s, cur, nxt, scale, stilde, carry, carry_out, jacobi_rows,
-                    field, order, starts):
+                    field, order):
     """A locally exact sweep in colour order (:func:`midpoint_solve`), serial:
-    g(W) made in place in ``nxt``, where the colours before c are new and the
-    rest still W's (copied in first), colour c's spins ``order[starts[c]:
-    starts[c + 1]]`` each in its field there. One colour's spins are not
-    paired, so their order does not matter: the same bits however the rows
-    were split. Returns max |ΔW| over all components."""
+    g(W) made in place in ``nxt`` (W copied in first), each spin in ``order``
+    (the atoms colour by colour) in its field there, where the colours before
+    its own are already new and the rest still W's. One colour's spins are
+    not paired, so their order does not matter. Returns max |ΔW| over all
+    components."""
     for i in range(s.shape[0]):
         nxt[i, 0] = cur[i, 0]
         nxt[i, 1] = cur[i, 1]
         nxt[i, 2] = cur[i, 2]
     m = 0.0
-    for idx in range(starts[len(starts) - 1]):
-        i = order[idx]
+    for i in order:
         if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
             continue
         bx, by, bz = _pair_field(i, row, nbr, Jbar, nxt)
@@ -475,7 +474,7 @@ anderson_mix_serial = serial_twin(anderson_mix)
 @threaded(anderson_mix=lambda: anderson_mix_serial)
 def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
                    theta0, carry, carry_out, memory=MEMORY, local=True, field=None,
-                   order=None, starts=None):
+                   order=None):
     r"""Solve the spherical-midpoint equation for fixed pair couplings J̄_ij:
 
     .. math::
@@ -490,8 +489,8 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     field of the others, B̄_i(W) held fixed (:func:`local_midpoint`, a Cayley
     rotation about B̄_i; contracts for every step size where the plain
     iteration may not; the end points made once, after the last sweep:
-    :func:`_end_points`). With a colouring (``order``, ``starts``: the atoms
-    by colour, no two of one colour paired; neighbors.greedy_colouring) the
+    :func:`_end_points`). With a colour order (``order``: the atoms colour by
+    colour, no two of one colour paired; neighbors.greedy_colouring) the
     locally exact sweep takes the colours in turn (Gauss–Seidel order,
     :func:`_coloured_sweep`, serial: the integrators take it in systems of
     serial size only), spin i of colour c in the field
@@ -547,16 +546,12 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
         by_colour = np.empty(0, dtype=np.int64)
     else:
         by_colour = order
-    if starts is None:
-        colour_starts = np.zeros(1, dtype=np.int64)
-    else:
-        colour_starts = starts
-    coloured = local and len(colour_starts) > 1
+    coloured = local and len(by_colour) > 0
     for it in range(1, max_iter + 1):
         if coloured:
             change[:] = 0.0
             change[0] = _coloured_sweep(row, nbr, Jbar, s, cur, nxt, scale, stilde, carry,
-                                        carry_out, jacobi_rows, field, by_colour, colour_starts)
+                                        carry_out, jacobi_rows, field, by_colour)
         else:
             for t in nb.prange(nthreads):
                 m = 0.0
