@@ -39,6 +39,11 @@ atoms run serial whatever is asked, so there only threads=1 is measured.
 SuzukiTrotter (order 2 and 4, LAMMPS's Cayley rotation) sweeps the spins one
 after the other: one thread.
 
+The one-sweep floor (last table): each CollectivePRK order's cost at each error
+if every midpoint solve took a single sweep, from its own error ladder and one
+fit of µs per step against sweeps per step (solver_floor_table): how much of the
+gap to Spirit is the method's error constant and how much its solver.
+
 Energy: --long-steps steps (one count per size) at dt = 2⁻¹⁰ ps ≈ 0.98 fs
 (Spirit's default step is 1 fs), every code's spins evaluated by ase_spin's
 evaluator in double precision (Spirit's ``system.get_energy`` is a float32) 50
@@ -62,6 +67,7 @@ from ase_spin import CollectivePRK, SuzukiTrotter  # noqa: E402
 from ase_spin.hamiltonian import Want  # noqa: E402
 from ase_spin.md import fused  # noqa: E402
 from ase_spin.md.base import TimestepWarning  # noqa: E402
+from ase_spin.md.compositions import composition_coefficients  # noqa: E402
 from ase_spin.md.ode import reference_solution  # noqa: E402
 from ase_spin.scenes import cone  # noqa: E402
 from ase_spin.spins import get_spins  # noqa: E402
@@ -250,6 +256,67 @@ def equal_error_table(rows, n, threads):
             print("| " + " | ".join(cells) + " |")
 
 
+def solver_floor_table(rows, n, t_end_ps, threads):
+    """What CollectivePRK would cost at each error if every midpoint solve took
+    one sweep: the steps its error ladder needs there (dt log-log interpolated
+    between the two runs that bracket the level) times the cost of a step
+    with one sweep per stage, a_order + b · stages, from one least-squares fit
+    of µs per step = a_order + b · sweeps per step over the runs of every order
+    (a_order: a step's own work, b: a sweep, the same for every order). A
+    sweep that moves W cannot also show it settled unless the predictor was
+    already within round-off of the solution, so this is a floor no solve to
+    round-off goes below, reached only where the steps are small: it separates
+    what the method's error constant costs from what its solver costs."""
+    print(f"\n### the one-sweep floor of CollectivePRK, N = {n} spins, {threads} thread(s) "
+          "(steps the error needs × a step with one sweep per stage)\n")
+    by_solver = {}
+    for r in rows:
+        if r[0] == "Spirit":
+            by_solver.setdefault(r[1], []).append(r)
+    own = {order: [r for r in rows if r[1] == f"CollectivePRK order {order}"
+                   and r[2] == threads and np.isfinite(r[7])] for order in PRK_LADDERS}
+    stages = {order: len(composition_coefficients(order)[1]) for order in PRK_LADDERS}
+    if sum(len(v) for v in own.values()) < 4:
+        return
+    orders = [o for o in own if own[o]]
+    A = np.array([[float(o == order) for o in orders] + [r[7]]
+                  for order in orders for r in own[order]])
+    y = np.array([r[6] / r[4] * 1e6 for order in orders for r in own[order]])
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    a, b = dict(zip(orders, coef[:-1])), coef[-1]
+    worst = float(np.max(np.abs(A @ coef - y) / y))
+    step = {o: a[o] + b * stages[o] for o in orders}
+    print(f"µs per step = a + {b:.2f} × sweeps, a = " + ", ".join(
+        f"{a[o]:.1f} (order {o})" for o in orders) + f" (fit over {len(y)} runs, largest "
+        f"deviation {worst:.0%}); one sweep per stage: " + ", ".join(
+        f"order {o} {step[o]:.1f} µs a step" for o in orders))
+    head = ["error", "Spirit (s)"]
+    for order in orders:
+        head += [f"order {order} / Spirit", "its floor / Spirit"]
+    print("\n| " + " | ".join(head) + " |")
+    print("|---" * len(head) + "|")
+    for level in [1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8]:
+        found = [w for v in by_solver.values() for w in [wall_at(v, level)]
+                 if w is not None and not w[1]]
+        if not found:
+            continue
+        sp = min(found)[0]
+        cells = [f"{level:.0e}", f"{sp:.3g}"]
+        for order in orders:
+            v = own[order]
+            pts = sorted((r[5], r[3]) for r in v)  # (error, dt)
+            dt = None
+            for (e0, d0), (e1, d1) in zip(pts, pts[1:]):
+                if e0 <= level <= e1 and 0 < e0 < e1:
+                    f = np.log(level / e0) / np.log(e1 / e0)
+                    dt = float(np.exp(np.log(d0) + f * (np.log(d1) - np.log(d0))))
+            measured = wall_at(v, level) if v else None
+            cells.append(f"{measured[0] / sp:.2f}" if measured and not measured[1] else "—")
+            floor = None if dt is None else t_end_ps / dt * step[order] * 1e-6
+            cells.append("—" if floor is None else f"{floor / sp:.2f}")
+        print("| " + " | ".join(cells) + " |")
+
+
 def long_run(scene, s0, steps, threads):
     """Energy error per spin over ``steps`` steps at dt = 2⁻¹⁰ ps, every method,
     sampled 50 times: the largest |E(t) − E(0)| in the first tenth of the run and
@@ -358,6 +425,7 @@ def main(argv=None):
                                           args.budget, args.quick, args.tol)
                     print_rows(rows, scene.nos)
                     equal_error_table(rows, scene.nos, th)
+                    solver_floor_table(rows, scene.nos, args.t_end, th[0])
                     if lsteps > 0:
                         long_run(scene, s0, 500 if args.quick else lsteps, th[0])
                     print(f"\n# load average: {loadavg()}")
