@@ -518,6 +518,39 @@ def test_colour_ordered_solve_reaches_the_index_order_solution_in_fewer_sweeps(m
     assert np.array_equal(_colour_solve(3, True, memory)[1], got)
 
 
+def test_colour_ordered_sweeps_give_the_same_bits_in_any_chunks():
+    """A simple cubic lattice (two colours, random couplings): the
+    colour-ordered solve with the colours' boundaries in two or three chunks
+    (each colour a parallel region, its spins split among them; threaded twin
+    and serial twin) gives the bits of the serial sweep in one chunk."""
+    from ase_spin.md import kernels
+
+    row, nbr = _simple_cubic_full(6)
+    order, starts = ase_spin.neighbors.greedy_colouring(row, nbr)
+    assert len(starts) - 1 == 2
+    rng = np.random.default_rng(3)
+    n = len(row) - 1
+    i = np.repeat(np.arange(n), 6)
+    J = 0.01 * (1.0 + 0.3 * rng.random(n * 6))
+    J = 0.5 * (J + J[np.lexsort((i, nbr))])  # J_ij = J_ji: a pair's two entries
+    s = rng.normal(size=(n, 3)) * 0.3 + [0.0, 0.0, 1.0]
+    s /= np.linalg.norm(s, axis=1)[:, None]
+    scale = np.full(n, 40.0)  # c|B̄| ~ 2: solves of several sweeps
+    results = []
+    for fn, nthreads in [(kernels.midpoint_solve.serial, 1), (kernels.midpoint_solve.serial, 3),
+                         (kernels.midpoint_solve.parallel, 2)]:
+        W, Wn, st, carry = s.copy(), np.zeros_like(s), np.zeros_like(s), np.zeros_like(s)
+        its, _, status, which, *_ = fn(nthreads, row, nbr, J, s, W, Wn, st, scale, 1e-15,
+                                       6.4e-14, 100, 0.5, np.zeros_like(s), carry, 0, True,
+                                       None, order, starts)
+        assert status != kernels.NOT_CONVERGED and its > 4
+        results.append((its, (W if which == 0 else Wn).copy(), st.copy(), carry.copy()))
+    for its, W, st, carry in results[1:]:
+        assert its == results[0][0]
+        for a, b in zip((W, st, carry), results[0][1:]):
+            assert np.array_equal(a, b)
+
+
 def test_frozen_stages_take_colour_order_where_it_pays():
     """kernels.next_sweep_order: a stage tries colour order after an
     index-order solve of 5 sweeps or more, goes back after a colour-ordered
@@ -526,7 +559,9 @@ def test_frozen_stages_take_colour_order_where_it_pays():
     nothing. fcc Co frozen: at 2 fs (order 4) every stage keeps colour order
     (contraction ~0.05-0.1 against ~0.2-0.3), at 0.05 fs none (two sweeps a
     solve, once the predictor has its history); a moving lattice never tries
-    it, nor a frozen one of threaded size (4000 atoms)."""
+    it; a frozen one of threaded size (4000 atoms) tries it, finds its 12
+    colours too many there (CollectivePRK._colour_pairs) and keeps index
+    order for good, its full list let go."""
     from ase_spin.md import kernels
 
     INDEX, COLOUR, KEPT = kernels.INDEX_ORDER, kernels.COLOUR_ORDER, kernels.INDEX_ORDER_KEPT
@@ -545,4 +580,46 @@ def test_frozen_stages_take_colour_order_where_it_pays():
         assert (dyn._state.full_ops is None) == (lattice == "moving")
     dyn = CollectivePRK(fcc_cobalt(10), 2.0 * units.fs, order=4, lattice="frozen")
     dyn.run(3)
-    assert set(dyn._state.sweep_order) == {INDEX} and dyn._state.full_ops is None
+    assert set(dyn._state.sweep_order) == {KEPT} and dyn._state.full_ops is None
+
+
+def _simple_cubic_atoms(n, threads=None):
+    """n³ Fe spins on a periodic simple cubic lattice (a = 2.5 Å), one
+    nearest-neighbour exchange J = 10 meV, moments of 2 μB in a 30° cone."""
+    from ase import Atoms
+
+    from ase_spin.scenes import cone
+    from ase_spin.spirit_peer import ConstantCoupling
+    from ase_spin.terms import Exchange
+
+    a = 2.5
+    grid = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    atoms = Atoms(f"Fe{n ** 3}", positions=a * grid, cell=np.eye(3) * n * a, pbc=True)
+    ase_spin.set_spins(atoms, cone(n ** 3, np.random.default_rng(7), 30.0), magnitudes=2.0)
+    atoms.calc = SpinLatticeCalculator([Exchange(ConstantCoupling(0.01, 3.0), rc=3.0)])
+    return atoms
+
+
+@pytest.mark.filterwarnings("ignore::ase_spin.md.base.TimestepWarning")  # 4 fs: on purpose
+def test_two_colourable_lattice_of_threaded_size_takes_colour_order():
+    """Simple cubic, 12³ = 1 728 spins (threaded size), frozen, order 4 at
+    4 fs: its stages take colour order (two colours), in fewer sweeps than
+    with index order alone, to the same trajectory; one thread and two give
+    the same bits."""
+    from ase_spin.md import kernels
+    from ase_spin.threads import SERIAL_BELOW
+
+    assert 12 ** 3 >= SERIAL_BELOW
+    runs = {}
+    for threads, colour in [(1, True), (2, True), (2, False)]:
+        atoms = _simple_cubic_atoms(12)
+        dyn = CollectivePRK(atoms, 4.0 * units.fs, order=4, lattice="frozen", threads=threads)
+        if not colour:  # index order throughout
+            dyn._choose_order = lambda *args: None
+        dyn.run(6)
+        runs[threads, colour] = (ase_spin.get_spins(atoms), dyn.total_iterations,
+                                 set(dyn._state.sweep_order))
+    assert kernels.COLOUR_ORDER in runs[1, True][2]
+    assert np.array_equal(runs[1, True][0], runs[2, True][0])
+    assert runs[1, True][1] == runs[2, True][1] < 0.8 * runs[2, False][1]
+    assert np.abs(runs[2, True][0] - runs[2, False][0]).max() < 1e-12

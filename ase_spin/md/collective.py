@@ -27,6 +27,11 @@ _MAX_OUTER = 12
 
 #: Tightest and loosest stopping tolerances of the midpoint iteration (on unit vectors).
 TOL_RANGE = (1e-16, 1e-3)
+#: Colours a lattice of threaded size may have for its frozen stages to take
+#: colour order (CollectivePRK._colour_pairs): two, a two-colourable lattice
+#: (simple cubic, bcc with its nearest neighbours), where a colour-ordered
+#: sweep squares the error.
+THREADED_COLOURS = 2
 
 #: The midpoint solvers: (Anderson memory, locally exact sweep).
 SOLVERS = {"anderson": (kernels.MEMORY, True), "local": (0, True), "jacobi": (0, False)}
@@ -490,16 +495,34 @@ class CollectivePRK(SpinLatticeDynamics):
         """After a solve at ``stage`` by ``solver`` (``sweeps`` sweeps, contraction
         ``measured`` or −1): the order of that stage's next locally exact
         sweeps (kernels.next_sweep_order; a frozen lattice, used with one spin
-        operator of linear pairs). Only in a system small enough for serial
-        sweeps (threads.SERIAL_BELOW): there a colour-ordered sweep (serial)
-        costs about what an index-order one does; threaded, each colour would
-        be a parallel region of its own, and it costs more than its fewer
-        sweeps save (docs/benchmarks.md, "Colour-ordered sweeps")."""
-        if self.frozen and len(self._state.s) < threads.SERIAL_BELOW:
+        operator of linear pairs; in a system of threaded size only on a
+        lattice of :data:`THREADED_COLOURS` colours at most, see
+        :meth:`_colour_pairs`)."""
+        if self.frozen:
             st = self._state
             st.sweep_order[stage], st.theta_index[stage] = kernels.next_sweep_order(
                 st.sweep_order[stage], SOLVERS[solver][1], sweeps, measured,
                 st.theta_index[stage])
+
+    def _colour_pairs(self, operators, mean):
+        """(pairs, c) of the full list for a colour-ordered solve, or None where
+        colour order does not pay: in a system of threaded size
+        (threads.SERIAL_BELOW atoms or more) whose colouring takes more than
+        :data:`THREADED_COLOURS` colours. There every colour is a parallel
+        region, and its spins lie scattered over the arrays; fcc Co (12
+        colours) took 1.4–1.6× the time at 32 000 atoms in fewer sweeps, a
+        simple cubic lattice (2) 0.72–0.78× (docs/benchmarks.md,
+        "Colour-ordered sweeps"). The stages then keep index order for good and
+        the full list is let go. Decided from the size and the lattice alone,
+        never the threads: the same bits whatever their count."""
+        pairs, c = self._full_pairs(operators, mean)
+        if (len(self._state.s) >= threads.SERIAL_BELOW
+                and len(pairs.colours()[1]) - 1 > THREADED_COLOURS):
+            st = self._state
+            st.sweep_order[:] = kernels.INDEX_ORDER_KEPT
+            st.full_ops = None
+            return None
+        return pairs, c
 
     def _full_pairs(self, operators, mean):
         """(pairs, c) of ``operators``' one linear-pairs operator on the full
@@ -538,12 +561,15 @@ class CollectivePRK(SpinLatticeDynamics):
                 min(1.0, 2.0 * st.theta[stage]), st.carry_s, carry)
         if len(operators) == 1 and hasattr(operators[0], "linear_pairs"):
             # B̄_i = Σ_j c_ij W_j: the whole iteration in one compiled loop
+            coloured = None
             if local and st.sweep_order[stage] == kernels.COLOUR_ORDER:  # (frozen)
-                pairs, c = self._full_pairs(operators, mean)
+                coloured = self._colour_pairs(operators, mean)
+            if coloured is not None:
+                pairs, c = coloured
                 if st.field_out is not None:
                     st.field_filled = True
                 return kernels.midpoint_solve(threads.count(), pairs.row, pairs.j, c, *args,
-                                              memory, local, st.field_out, pairs.colours()[0])
+                                              memory, local, st.field_out, *pairs.colours())
             pairs, c = operators[0].linear_pairs(mean)
             solve = kernels.midpoint_solve_half if pairs.half else kernels.midpoint_solve
             if st.field_out is None:

@@ -313,7 +313,7 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
 def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_iter, theta,
                 memory, local, switch, adaptive, one_sweep, orders, ring, counts, heads, probe,
                 kept, kept_n, row, nbr, c, coefficients, sweep_order, theta_index, full_row,
-                full_nbr, full_c, order):
+                full_nbr, full_c, order, starts):
     """:func:`_run` for a frozen lattice (CollectivePRK's spins-only step,
     ``_substep`` with ``lattice="frozen"``) with one spin operator of the form
     B_i = Σ_j c_k W_j (``linear_pairs``: row, nbr, c): per stage the
@@ -324,7 +324,8 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
     Python path with the same arguments; a stage whose ``sweep_order`` is
     colour order solves with locally exact sweeps in that order
     (``solve_full``, kernels.midpoint_solve's serial twin, over the full list
-    ``full_row``, ``full_nbr``, ``full_c`` in its colour order ``order``;
+    ``full_row``, ``full_nbr``, ``full_c`` in its colour order ``order``,
+    the colours' boundaries ``starts``);
     ``sweep_order`` and ``theta_index`` kept by
     kernels.next_sweep_order). Steps are taken whole or not at all;
     a solve that fails or contracts by more than ``switch`` per sweep, or a
@@ -365,7 +366,7 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
                 its, delta, status, which, measured, moved = solve_full(  # noqa: F821
                     1, full_row, full_nbr, full_c, s, W, Wnext, stilde, scales[stage], tol,
                     floor, max_iter[stage], min(1.0, 2.0 * theta[stage]), carry_s, carry,
-                    memory[stage], use_local, None, order)
+                    memory[stage], use_local, None, order, starts)
             else:
                 its, delta, status, which, measured, moved = solve(  # noqa: F821
                     1, row, nbr, c, s, W, Wnext, stilde, scales[stage], tol, floor,
@@ -856,11 +857,11 @@ def _frozen_block(dyn, steps):
     run = _frozen_runner(bool(pairs.half))
     if st.full_ops is not None or not pairs.half:
         full, full_c = dyn._full_pairs(st.ops, False)
-        order = full.colours()[0]
+        order, starts = full.colours()
         full_row, full_nbr = full.row, full.j
     else:  # made by the general path when a stage first needs it
         full_row, full_nbr, full_c = _NO_FULL_LIST
-        order = _NO_FULL_LIST[0]
+        order = starts = _NO_FULL_LIST[0]
     if not _pays(dyn, run):
         return 0, 0, 0, 0
     gammas, scales, memory, local, max_iter, switch, adaptive = _stage_arrays(dyn)
@@ -871,7 +872,7 @@ def _frozen_block(dyn, steps):
         steps, st.s, dyn.dt, gammas, scales, st.carry_s, st.Wnext, dyn.tol, 64.0 * dyn.tol,
         max_iter, theta, memory, local, switch, adaptive, st.one_sweep, orders, ring, counts,
         heads, st.probe, st.kept, st.kept_n, pairs.row, pairs.j, c, kernels._COEFFICIENTS,
-        st.sweep_order, st.theta_index, full_row, full_nbr, full_c, order)
+        st.sweep_order, st.theta_index, full_row, full_nbr, full_c, order, starts)
     if done:
         st.s, st.carry_s, st.Wnext = s, carry_s, Wnext
         st.theta = theta.tolist()

@@ -474,7 +474,7 @@ anderson_mix_serial = serial_twin(anderson_mix)
 @threaded(anderson_mix=lambda: anderson_mix_serial)
 def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
                    theta0, carry, carry_out, memory=MEMORY, local=True, field=None,
-                   order=None):
+                   order=None, starts=None):
     r"""Solve the spherical-midpoint equation for fixed pair couplings J̄_ij:
 
     .. math::
@@ -491,16 +491,20 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     iteration may not; the end points made once, after the last sweep:
     :func:`_end_points`). With a colour order (``order``: the atoms colour by
     colour, no two of one colour paired; neighbors.greedy_colouring) the
-    locally exact sweep takes the colours in turn (Gauss–Seidel order,
-    :func:`_coloured_sweep`, serial: the integrators take it in systems of
-    serial size only), spin i of colour c in the field
+    locally exact sweep takes the colours in turn (Gauss–Seidel order), spin i
+    of colour c in the field
 
     .. math:: \bar{\mathbf B}_i = \sum_{j:\, c_j < c} \bar J_{ij} g(W)_j
               + \sum_{j:\, c_j > c} \bar J_{ij} \mathbf W_j,
 
     which contracts about as fast as two sweeps in index order (the error is
     squared on a two-colourable lattice); the spins of one colour are
-    independent, so they are solved side by side. Else the Jacobi map g(W) = (2 s + c W × B̄(W)) /
+    independent, so they are solved side by side: with ``starts`` (colour c
+    is ``order[starts[c]:starts[c + 1]]``) and more than one chunk, each colour
+    in a parallel region of its own, its spins split evenly among the chunks;
+    else in one serial pass (:func:`_coloured_sweep`). Either way each spin
+    sees the same values, so the bits do not depend on the chunks. Else the
+    Jacobi map g(W) = (2 s + c W × B̄(W)) /
     |2 s + c W × B̄(W)|, which contracts only while c|B̄| ≲ 1. With ``memory``
     m > 0, the next iterate is the Anderson combination of the last m + 1
     sweeps (:func:`anderson_mix`); else g(W). Rows with s_i = 0 (non-magnetic atoms) are skipped.
@@ -547,8 +551,40 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     else:
         by_colour = order
     coloured = local and len(by_colour) > 0
+    if starts is None:
+        colour_starts = np.zeros(0, dtype=np.int64)
+    else:
+        colour_starts = starts
+    threaded_colours = coloured and nthreads > 1 and len(colour_starts) > 1
     for it in range(1, max_iter + 1):
-        if coloured:
+        if threaded_colours:
+            for t in nb.prange(nthreads):
+                for i in range((n * t) // nthreads, (n * (t + 1)) // nthreads):
+                    nxt[i, 0] = cur[i, 0]
+                    nxt[i, 1] = cur[i, 1]
+                    nxt[i, 2] = cur[i, 2]
+                change[t] = 0.0
+            for col in range(len(colour_starts) - 1):
+                lo = colour_starts[col]
+                size = colour_starts[col + 1] - lo
+                for t in nb.prange(nthreads):
+                    m = change[t]
+                    for a in range(lo + (size * t) // nthreads,
+                                   lo + (size * (t + 1)) // nthreads):
+                        i = by_colour[a]
+                        if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+                            continue
+                        bx, by, bz = _pair_field(i, row, nbr, Jbar, nxt)
+                        if field is not None:
+                            field[i, 0] = bx
+                            field[i, 1] = by
+                            field[i, 2] = bz
+                        d = _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde,
+                                                      carry, carry_out, jacobi_rows)
+                        if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
+                            m = d
+                    change[t] = m
+        elif coloured:
             change[:] = 0.0
             change[0] = _coloured_sweep(row, nbr, Jbar, s, cur, nxt, scale, stilde, carry,
                                         carry_out, jacobi_rows, field, by_colour)
