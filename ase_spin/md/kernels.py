@@ -296,20 +296,15 @@ def _pair_field(i, row, nbr, Jbar, source):
 
 
 @nb.njit(cache=True)
-def _coloured_sweep(row, nbr, Jbar, s, cur, nxt, scale, stilde, carry, carry_out, jacobi_rows,
-                    field, order):
-    """A locally exact sweep in colour order (:func:`midpoint_solve`), serial:
-    g(W) made in place in ``nxt`` (W copied in first), each spin in ``order``
-    (the atoms colour by colour) in its field there, where the colours before
-    its own are already new and the rest still W's. One colour's spins are
-    not paired, so their order does not matter. Returns max |ΔW| over all
-    components."""
-    for i in range(s.shape[0]):
-        nxt[i, 0] = cur[i, 0]
-        nxt[i, 1] = cur[i, 1]
-        nxt[i, 2] = cur[i, 2]
+def _coloured_spins(lo, hi, row, nbr, Jbar, s, cur, nxt, scale, stilde, carry, carry_out,
+                    jacobi_rows, field, order):
+    """The locally exact updates of the spins ``order[lo:hi]`` in turn, in
+    place in ``nxt`` (:func:`midpoint_solve`): each in its field there, where
+    the spins updated before it are already new and the rest still the
+    iterate's. Returns max |ΔW| over their components."""
     m = 0.0
-    for i in order:
+    for a in range(lo, hi):
+        i = order[a]
         if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
             continue
         bx, by, bz = _pair_field(i, row, nbr, Jbar, nxt)
@@ -322,6 +317,23 @@ def _coloured_sweep(row, nbr, Jbar, s, cur, nxt, scale, stilde, carry, carry_out
         if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
             m = d
     return m
+
+
+@nb.njit(cache=True)
+def _coloured_sweep(row, nbr, Jbar, s, cur, nxt, scale, stilde, carry, carry_out, jacobi_rows,
+                    field, order):
+    """A locally exact sweep in colour order (:func:`midpoint_solve`), serial:
+    g(W) made in place in ``nxt`` (W copied in first), each spin in ``order``
+    (the atoms colour by colour) in its field there, where the colours before
+    its own are already new and the rest still W's (:func:`_coloured_spins`).
+    One colour's spins are not paired, so their order does not matter.
+    Returns max |ΔW| over all components."""
+    for i in range(s.shape[0]):
+        nxt[i, 0] = cur[i, 0]
+        nxt[i, 1] = cur[i, 1]
+        nxt[i, 2] = cur[i, 2]
+    return _coloured_spins(0, len(order), row, nbr, Jbar, s, cur, nxt, scale, stilde, carry,
+                           carry_out, jacobi_rows, field, order)
 
 
 @nb.njit(cache=True, inline="always")
@@ -568,22 +580,12 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
                 lo = colour_starts[col]
                 size = colour_starts[col + 1] - lo
                 for t in nb.prange(nthreads):
-                    m = change[t]
-                    for a in range(lo + (size * t) // nthreads,
-                                   lo + (size * (t + 1)) // nthreads):
-                        i = by_colour[a]
-                        if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
-                            continue
-                        bx, by, bz = _pair_field(i, row, nbr, Jbar, nxt)
-                        if field is not None:
-                            field[i, 0] = bx
-                            field[i, 1] = by
-                            field[i, 2] = bz
-                        d = _local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde,
-                                                      carry, carry_out, jacobi_rows)
-                        if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
-                            m = d
-                    change[t] = m
+                    d = _coloured_spins(lo + (size * t) // nthreads,
+                                        lo + (size * (t + 1)) // nthreads, row, nbr, Jbar, s,
+                                        cur, nxt, scale, stilde, carry, carry_out, jacobi_rows,
+                                        field, by_colour)
+                    if not d <= change[t] and change[t] == change[t]:  # (NaN stays)
+                        change[t] = d
         elif coloured:
             change[:] = 0.0
             change[0] = _coloured_sweep(row, nbr, Jbar, s, cur, nxt, scale, stilde, carry,
