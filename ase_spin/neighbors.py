@@ -132,6 +132,30 @@ def greedy_colouring(row, nbr):
 
 
 @nb.njit(cache=True)
+def rows_in_order(row, nbr, c, order):
+    """The rows of a pair list (row pointer, partners, per-pair values ``c``)
+    copied in ``order``: row a of the copy is row ``order[a]``, its pairs in
+    their order. A colour-ordered sweep then reads each colour's rows as one
+    stretch of memory instead of scattered over the list (fcc Co with 32 000
+    atoms: 24 against 38 ns per atom and sweep, docs/benchmarks.md)."""
+    n = len(order)
+    prow = np.zeros(n + 1, dtype=np.int64)
+    for a in range(n):
+        i = order[a]
+        prow[a + 1] = prow[a] + (row[i + 1] - row[i])
+    pnbr = np.empty(prow[n], dtype=nbr.dtype)
+    pc = np.empty(prow[n], dtype=c.dtype)
+    for a in range(n):
+        i = order[a]
+        k0 = prow[a]
+        for k in range(row[i], row[i + 1]):
+            pnbr[k0] = nbr[k]
+            pc[k0] = c[k]
+            k0 += 1
+    return prow, pnbr, pc
+
+
+@nb.njit(cache=True)
 def max_displacement(positions, reference):
     """(largest |r_a − r_ref,a|, that atom's index); NaN if any distance is NaN."""
     worst = 0.0

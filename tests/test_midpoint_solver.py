@@ -467,9 +467,10 @@ def test_colour_ordered_sweep_is_gauss_seidel():
     W0 /= np.linalg.norm(W0, axis=1)[:, None]
     scale = dyn._scale(2 * units.fs)
     W, Wn, st = W0.copy(), np.zeros_like(s), np.zeros_like(s)
+    prow, pnbr, pc = ase_spin.neighbors.rows_in_order(pairs.row, pairs.j, c, order)
     its, _, status, which, *_ = kernels.midpoint_solve.serial(
-        1, pairs.row, pairs.j, c, s, W, Wn, st, scale, 3.0, 0.0, 1, 0.5, np.zeros_like(s),
-        np.zeros_like(s), 0, True, None, order)  # "converged" after one sweep
+        1, prow, pnbr, pc, s, W, Wn, st, scale, 3.0, 0.0, 1, 0.5, np.zeros_like(s),
+        np.zeros_like(s), 0, True, None, order, starts)  # "converged" after one sweep
     assert its == 1 and status == kernels.CONVERGED
     got = W if which == 0 else Wn
     new = W0.copy()
@@ -499,8 +500,10 @@ def _colour_solve(chunks_, colours, memory, dt_fs=3.0):
             6.4e-14, 100, 0.5, np.zeros_like(s), np.zeros_like(s), memory, True)
     if colours is None:  # (the arguments left out, as the callers do)
         its, _, status, *_ = fn(*args)
-    else:
-        its, _, status, *_ = fn(*args, None, pairs.colours()[0])
+    else:  # the rows in colour order
+        order, starts = pairs.colours()
+        rows = ase_spin.neighbors.rows_in_order(pairs.row, pairs.j, c, order)
+        its, _, status, *_ = fn(args[0], *rows, *args[4:], None, order, starts)
     assert status != kernels.NOT_CONVERGED
     return its, st
 
@@ -536,11 +539,12 @@ def test_colour_ordered_sweeps_give_the_same_bits_in_any_chunks():
     s = rng.normal(size=(n, 3)) * 0.3 + [0.0, 0.0, 1.0]
     s /= np.linalg.norm(s, axis=1)[:, None]
     scale = np.full(n, 40.0)  # c|B̄| ~ 2: solves of several sweeps
+    rows = ase_spin.neighbors.rows_in_order(row, nbr, J, order)
     results = []
     for fn, nthreads in [(kernels.midpoint_solve.serial, 1), (kernels.midpoint_solve.serial, 3),
                          (kernels.midpoint_solve.parallel, 2)]:
         W, Wn, st, carry = s.copy(), np.zeros_like(s), np.zeros_like(s), np.zeros_like(s)
-        its, _, status, which, *_ = fn(nthreads, row, nbr, J, s, W, Wn, st, scale, 1e-15,
+        its, _, status, which, *_ = fn(nthreads, *rows, s, W, Wn, st, scale, 1e-15,
                                        6.4e-14, 100, 0.5, np.zeros_like(s), carry, 0, True,
                                        None, order, starts)
         assert status != kernels.NOT_CONVERGED and its > 4
@@ -581,6 +585,26 @@ def test_frozen_stages_take_colour_order_where_it_pays():
     dyn = CollectivePRK(fcc_cobalt(10), 2.0 * units.fs, order=4, lattice="frozen")
     dyn.run(3)
     assert set(dyn._state.sweep_order) == {KEPT} and dyn._state.full_ops is None
+
+
+def test_colour_order_reads_the_full_lists_rows_in_colour_order():
+    """fcc Co frozen (108 atoms) at 2 fs, order 4: the stages' colour-ordered
+    solves read the full list's rows copied in colour order, kept once (each
+    row the same pairs in the same order as the list's own)."""
+    from ase_spin.md import kernels
+
+    dyn = CollectivePRK(fcc_cobalt(3), 2.0 * units.fs, order=4, lattice="frozen")
+    dyn.run(12)
+    st = dyn._state
+    assert kernels.COLOUR_ORDER in set(st.sweep_order)
+    c, (prow, pnbr, pc) = st.colour_rows
+    pairs, J = st.full_ops[0].linear_pairs(False)
+    assert c is J
+    order, _ = pairs.colours()
+    for a in range(len(order)):
+        i = order[a]
+        k, pk = slice(pairs.row[i], pairs.row[i + 1]), slice(prow[a], prow[a + 1])
+        assert np.array_equal(pairs.j[k], pnbr[pk]) and np.array_equal(J[k], pc[pk])
 
 
 def _simple_cubic_atoms(n, threads=None):

@@ -14,6 +14,7 @@ from ase import units
 
 from .. import threads
 from ..constants import HBAR
+from ..neighbors import rows_in_order
 from ..validate import integer, real_scalar
 from . import fused, kernels
 from .base import (IntegrationError, SpinConvergenceError, SpinLatticeDynamics,
@@ -242,6 +243,7 @@ class CollectivePRK(SpinLatticeDynamics):
         st.sweep_order = np.zeros(len(self.gammas), dtype=np.int64)
         st.theta_index = np.full(len(self.gammas), -1.0)
         st.full_ops = None
+        st.colour_rows = None  # (c, its rows in colour order): _colour_pairs
 
     # -- the step ---------------------------------------------------------------
 
@@ -505,24 +507,32 @@ class CollectivePRK(SpinLatticeDynamics):
                 st.theta_index[stage])
 
     def _colour_pairs(self, operators, mean):
-        """(pairs, c) of the full list for a colour-ordered solve, or None where
-        colour order does not pay: in a system of threaded size
-        (threads.SERIAL_BELOW atoms or more) whose colouring takes more than
-        :data:`THREADED_COLOURS` colours. There every colour is a parallel
-        region, and its spins lie scattered over the arrays; fcc Co (12
-        colours) took 1.4–1.6× the time at 32 000 atoms in fewer sweeps, a
-        simple cubic lattice (2) 0.72–0.78× (docs/benchmarks.md,
-        "Colour-ordered sweeps"). The stages then keep index order for good and
-        the full list is let go. Decided from the size and the lattice alone,
-        never the threads: the same bits whatever their count."""
+        """(row, nbr, c, order, starts) for a colour-ordered solve: the full
+        list's rows copied in colour order (neighbors.rows_in_order, made once:
+        a frozen lattice's pairs and couplings do not change) and its
+        colouring; or None where colour order does not pay: in a system of
+        threaded size (threads.SERIAL_BELOW atoms or more) whose colouring
+        takes more than :data:`THREADED_COLOURS` colours. There every colour is
+        a parallel region of its own, and fcc Co's 13 took 0.93–1.06 of index
+        order's time at 32 000 atoms in 40 % fewer sweeps, even with the rows
+        in colour order (docs/benchmarks.md, "Colour-ordered sweeps"). The
+        stages then keep index order for good and the full list is let go.
+        Decided from the size and the lattice alone, never the threads: the
+        same bits whatever their count."""
+        st = self._state
         pairs, c = self._full_pairs(operators, mean)
-        if (len(self._state.s) >= threads.SERIAL_BELOW
-                and len(pairs.colours()[1]) - 1 > THREADED_COLOURS):
-            st = self._state
+        order, starts = pairs.colours()
+        colours = len(starts) - 1
+        n = len(st.s)
+        if n >= threads.SERIAL_BELOW and colours > THREADED_COLOURS:
             st.sweep_order[:] = kernels.INDEX_ORDER_KEPT
             st.full_ops = None
+            st.colour_rows = None
             return None
-        return pairs, c
+        kept = st.colour_rows
+        if kept is None or kept[0] is not c:
+            kept = st.colour_rows = (c, rows_in_order(pairs.row, pairs.j, c, order))
+        return (*kept[1], order, starts)
 
     def _full_pairs(self, operators, mean):
         """(pairs, c) of ``operators``' one linear-pairs operator on the full
@@ -565,11 +575,11 @@ class CollectivePRK(SpinLatticeDynamics):
             if local and st.sweep_order[stage] == kernels.COLOUR_ORDER:  # (frozen)
                 coloured = self._colour_pairs(operators, mean)
             if coloured is not None:
-                pairs, c = coloured
+                row, nbr, c, order, starts = coloured
                 if st.field_out is not None:
                     st.field_filled = True
-                return kernels.midpoint_solve(threads.count(), pairs.row, pairs.j, c, *args,
-                                              memory, local, st.field_out, *pairs.colours())
+                return kernels.midpoint_solve(threads.count(), row, nbr, c, *args, memory, local,
+                                              st.field_out, order, starts)
             pairs, c = operators[0].linear_pairs(mean)
             solve = kernels.midpoint_solve_half if pairs.half else kernels.midpoint_solve
             if st.field_out is None:

@@ -324,8 +324,9 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
     Python path with the same arguments; a stage whose ``sweep_order`` is
     colour order solves with locally exact sweeps in that order
     (``solve_full``, kernels.midpoint_solve's serial twin, over the full list
-    ``full_row``, ``full_nbr``, ``full_c`` in its colour order ``order``,
-    the colours' boundaries ``starts``);
+    ``full_row``, ``full_nbr``, ``full_c``, its rows copied in its colour
+    order ``order`` (neighbors.rows_in_order), the colours' boundaries
+    ``starts``);
     ``sweep_order`` and ``theta_index`` kept by
     kernels.next_sweep_order). Steps are taken whole or not at all;
     a solve that fails or contracts by more than ``switch`` per sweep, or a
@@ -856,9 +857,9 @@ def _frozen_block(dyn, steps):
     pairs, c = st.ops[0].linear_pairs(False)
     run = _frozen_runner(bool(pairs.half))
     if st.full_ops is not None or not pairs.half:
-        full, full_c = dyn._full_pairs(st.ops, False)
-        order, starts = full.colours()
-        full_row, full_nbr = full.row, full.j
+        # the full list's rows in colour order (a system of this size always
+        # takes colour order where its stages want it)
+        full_row, full_nbr, full_c, order, starts = dyn._colour_pairs(st.ops, False)
     else:  # made by the general path when a stage first needs it
         full_row, full_nbr, full_c = _NO_FULL_LIST
         order = starts = _NO_FULL_LIST[0]

@@ -301,13 +301,14 @@ def _coloured_spins(lo, hi, row, nbr, Jbar, s, cur, nxt, scale, stilde, carry, c
     """The locally exact updates of the spins ``order[lo:hi]`` in turn, in
     place in ``nxt`` (:func:`midpoint_solve`): each in its field there, where
     the spins updated before it are already new and the rest still the
-    iterate's. Returns max |ΔW| over their components."""
+    iterate's. The rows are in ``order`` (row a is spin ``order[a]``'s:
+    neighbors.rows_in_order). Returns max |ΔW| over their components."""
     m = 0.0
     for a in range(lo, hi):
         i = order[a]
         if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
             continue
-        bx, by, bz = _pair_field(i, row, nbr, Jbar, nxt)
+        bx, by, bz = _pair_field(a, row, nbr, Jbar, nxt)
         if field is not None:
             field[i, 0] = bx
             field[i, 1] = by
@@ -511,7 +512,10 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
 
     which contracts about as fast as two sweeps in index order (the error is
     squared on a two-colourable lattice); the spins of one colour are
-    independent, so they are solved side by side: with ``starts`` (colour c
+    independent, so they are solved side by side. With ``order`` the rows of
+    ``row``, ``nbr`` and ``Jbar`` are taken in that order (row a belongs to
+    spin ``order[a]``: neighbors.rows_in_order), so that each colour's rows
+    are read as one stretch of memory. With ``starts`` (colour c
     is ``order[starts[c]:starts[c + 1]]``) and more than one chunk, each colour
     in a parallel region of its own, its spins split evenly among the chunks;
     else in one serial pass (:func:`_coloured_sweep`). Either way each spin
