@@ -118,16 +118,7 @@ def greedy_colouring(row, nbr):
         colour[i] = c
         if c + 1 > ncolours:
             ncolours = c + 1
-    starts = np.zeros(ncolours + 1, dtype=np.int64)
-    for i in range(n):
-        starts[colour[i] + 1] += 1
-    for c in range(ncolours):
-        starts[c + 1] += starts[c]
-    fill = starts[:-1].copy()
-    order = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        order[fill[colour[i]]] = i
-        fill[colour[i]] += 1
+    starts, order = group_by_key(colour, ncolours)
     return order, starts
 
 
@@ -136,8 +127,8 @@ def rows_in_order(row, nbr, c, order):
     """The rows of a pair list (row pointer, partners, per-pair values ``c``)
     copied in ``order``: row a of the copy is row ``order[a]``, its pairs in
     their order. A colour-ordered sweep then reads each colour's rows as one
-    stretch of memory instead of scattered over the list (fcc Co with 32 000
-    atoms: 24 against 38 ns per atom and sweep, docs/benchmarks.md)."""
+    stretch of memory instead of scattered over the list (docs/benchmarks.md,
+    "Colour-ordered sweeps")."""
     n = len(order)
     prow = np.zeros(n + 1, dtype=np.int64)
     for a in range(n):
@@ -481,20 +472,28 @@ def _bin_sort(bins, nbins):
     """Atoms grouped by bin (a counting sort, by index within a bin): bin b holds
     ``order[start[b]:start[b + 1]]``."""
     n = bins.shape[0]
-    total = nbins[0] * nbins[1] * nbins[2]
-    start = np.zeros(total + 1, dtype=np.int64)
     ids = np.empty(n, dtype=np.int64)
     for a in range(n):
-        b = (bins[a, 0] * nbins[1] + bins[a, 1]) * nbins[2] + bins[a, 2]
-        ids[a] = b
-        start[b + 1] += 1
-    for b in range(total):
+        ids[a] = (bins[a, 0] * nbins[1] + bins[a, 1]) * nbins[2] + bins[a, 2]
+    return group_by_key(ids, nbins[0] * nbins[1] * nbins[2])
+
+
+@nb.njit(cache=True)
+def group_by_key(keys, nkeys):
+    """``(start, order)``: the indices 0 … n−1 grouped by their ``keys`` (in
+    0 … nkeys−1; a counting sort, by index within one key), key b holding
+    ``order[start[b]:start[b + 1]]``."""
+    n = keys.shape[0]
+    start = np.zeros(nkeys + 1, dtype=np.int64)
+    for a in range(n):
+        start[keys[a] + 1] += 1
+    for b in range(nkeys):
         start[b + 1] += start[b]
     fill = start[:-1].copy()
     order = np.empty(n, dtype=np.int64)
     for a in range(n):
-        order[fill[ids[a]]] = a
-        fill[ids[a]] += 1
+        order[fill[keys[a]]] = a
+        fill[keys[a]] += 1
     return start, order
 
 

@@ -513,9 +513,8 @@ class CollectivePRK(SpinLatticeDynamics):
         colouring; or None where colour order does not pay: in a system of
         threaded size (threads.SERIAL_BELOW atoms or more) whose colouring
         takes more than :data:`THREADED_COLOURS` colours. There every colour is
-        a parallel region of its own, and fcc Co's 13 took 0.93–1.06 of index
-        order's time at 32 000 atoms in 40 % fewer sweeps, even with the rows
-        in colour order (docs/benchmarks.md, "Colour-ordered sweeps"). The
+        a parallel region of its own, and more of them cost about what their
+        fewer sweeps save (docs/benchmarks.md, "Colour-ordered sweeps"). The
         stages then keep index order for good and the full list is let go.
         Decided from the size and the lattice alone, never the threads: the
         same bits whatever their count."""
