@@ -531,15 +531,118 @@ def _copy_positions(positions, buffer):
     return buffer
 
 
+# exp(−x) for the Bethe–Slater couplings, in a form LLVM vectorises (the
+# library exp is a call per pair, most of the geometry pass's time): with
+# x = k ln2 + r, |r| ≤ ln2/2 (Cody–Waite, ln2 in two parts),
+# exp(−x) = 2^−k exp(−r), exp(−r) by its Taylor series to degree 13 (the
+# rest below 2e-17), written 1 + (y + y² q(y)) so that the last rounding is
+# the one of 1 + (…): at most 0.96 ulp from the exact value (the C library's
+# exp: 0.51; they differ in the last bit for one argument in ten;
+# tests/test_exchange_storage.py). 2^−k is a table entry for one pair, built
+# from its exponent bits for a block of pairs (the same double). Arguments
+# above _EXP_X_MAX (exp(−x) < 2^−1021) give 0, NaN gives NaN.
+_INV_LN2 = 1.4426950408889634
+_LN2_HI = 6.93147180369123816490e-01
+_LN2_LO = 1.90821492927058770002e-10
+_EXP_X_MAX = 708.0
+_TWO_TO_MINUS = np.array([2.0 ** -k for k in range(1022)])
+
+
+@nb.njit(cache=True, inline="always")
+def _exp_reduced(x):
+    """(k, r) with x = k ln2 + r, |r| ≤ ln2/2, for x clamped to [0, _EXP_X_MAX]
+    (NaN: _EXP_X_MAX; the caller gives NaN back)."""
+    x = x if x < _EXP_X_MAX else _EXP_X_MAX
+    x = x if x > 0.0 else 0.0
+    k = np.floor(x * _INV_LN2 + 0.5)
+    return k, (x - k * _LN2_HI) - k * _LN2_LO
+
+
+@nb.njit(cache=True, inline="always")
+def _exp_of_reduced(r):
+    """exp(−r) for |r| ≤ ln2/2 (Taylor to degree 13)."""
+    y = -r
+    q = (0.5 + y * (1.6666666666666666e-01 + y * (4.1666666666666664e-02
+         + y * (8.3333333333333332e-03 + y * (1.3888888888888889e-03
+         + y * (1.9841269841269841e-04 + y * (2.4801587301587302e-05
+         + y * (2.7557319223985893e-06 + y * (2.7557319223985888e-07
+         + y * (2.5052108385441720e-08 + y * (2.0876756987868100e-09
+         + y * 1.6059043836821613e-10)))))))))))
+    return 1.0 + (y + (y * y) * q)
+
+
+@nb.njit(cache=True, inline="always")
+def _exp_range(x, e):
+    """e where 0 ≤ x ≤ _EXP_X_MAX, 0 above, NaN for NaN."""
+    if x <= _EXP_X_MAX:
+        return e
+    return 0.0 if x > _EXP_X_MAX else x
+
+
+@nb.njit(cache=True, inline="always")
+def exp_minus(x):
+    """exp(−x) for x ≥ 0 (see the comment above _EXP_X_MAX): one value."""
+    k, r = _exp_reduced(x)
+    return _exp_range(x, _exp_of_reduced(r) * _TWO_TO_MINUS[np.int64(k)])
+
+
+@nb.njit(cache=True, inline="always")
+def _exp_minus_block(x, ex, bits):
+    """ex[b] = exp_minus(x[b]) for a block of arguments, 2^−k from its
+    exponent bits (``bits``: an int64 scratch of the same length): two
+    straight loops, which LLVM vectorises; the same values."""
+    for b in range(len(x)):
+        k, _ = _exp_reduced(x[b])
+        bits[b] = (1023 - np.int64(k)) << 52
+    scale = bits.view(np.float64)
+    for b in range(len(x)):
+        xb = x[b]
+        _, r = _exp_reduced(xb)
+        ex[b] = _exp_range(xb, _exp_of_reduced(r) * scale[b])
+
+
+@nb.njit(cache=True, inline="always")
+def _exp_arguments(lo, hi, pos, row, nbr, image, images, types, table):
+    """(x, ex, bits) for the pairs of atoms lo … hi − 1 of a multi-species
+    table: x = r²/J3² of the Bethe–Slater pairs (0 for the others), their
+    exp(−x) (:func:`_exp_minus_block`), indexed from the first pair."""
+    k0 = row[lo]
+    x = np.empty(row[hi] - k0)
+    for i in range(lo, hi):
+        ti = types[i]
+        for k in range(row[i], row[i + 1]):
+            tj = types[nbr[k]]
+            _, _, _, r2 = separation(pos, images, i, nbr[k], image[k])
+            bs = table[ti, tj, _FORM] == _BETHE_SLATER
+            x[k - k0] = r2 * table[ti, tj, _P2] if bs else 0.0
+    ex = np.empty(len(x))
+    _exp_minus_block(x, ex, np.empty(len(x), dtype=np.int64))
+    return x, ex
+
+
+@nb.njit(cache=True, inline="always")
+def _coupling_given_exp(table, ti, tj, r2, x, ex):
+    """:func:`_coupling` with the Bethe–Slater pair's x = r²/J3² and
+    exp(−x) given (:func:`_exp_arguments`): the same values."""
+    if table[ti, tj, _FORM] == _BETHE_SLATER:
+        return _bethe_slater(table[ti, tj, _P0], table[ti, tj, _P1], table[ti, tj, _P2], x, ex)
+    return _coupling(table, ti, tj, r2)
+
+
+@nb.njit(cache=True, inline="always")
+def _bethe_slater(p0, p1, p2, x, ex):
+    """J and J'(r)/r of the Bethe–Slater form at x = r²/J3², ex = exp(−x)."""
+    return (4.0 * p0 * x * (1.0 - p1 * x) * ex,
+            8.0 * p0 * p2 * ex * (1.0 - x - p1 * x * (2.0 - x)))
+
+
 @nb.njit(cache=True, inline="always")
 def _coupling_form(form, p0, p1, p2, r2):
     """J(r) and J'(r)/r of a compiled coupling form with parameters p0..p2:
     Bethe–Slater (J1, J2, 1/J3²), cubic (J0, rc, 1/rc)."""
     if form == _BETHE_SLATER:
         x = r2 * p2
-        ex = np.exp(-x)
-        return (4.0 * p0 * x * (1.0 - p1 * x) * ex,
-                8.0 * p0 * p2 * ex * (1.0 - x - p1 * x * (2.0 - x)))
+        return _bethe_slater(p0, p1, p2, x, exp_minus(x))
     if form == _CUBIC:
         r = np.sqrt(r2)
         if r >= p1:
@@ -556,6 +659,12 @@ def _coupling(table, ti, tj, r2):
                           table[ti, tj, _P2], r2)
 
 
+#: Atoms per block of the passes that take the Bethe–Slater exponentials of
+#: their pairs first (_bethe_slater_block, _exp_arguments): a block's scratch
+#: stays in the L1 cache.
+_GEOMETRY_BLOCK = 64
+
+
 @threaded(always=True)
 def _geometry_kernel(pos, row, nbr, image, images, types, table, J, g, G, other, Jbar):
     """J_k = J(r_ij) and, into whichever of G and g is not empty,
@@ -565,7 +674,21 @@ def _geometry_kernel(pos, row, nbr, image, images, types, table, J, g, G, other,
     n = len(row) - 1
     want_mean = other.shape[0] > 0
     stored = G.shape[0] > 0
-    for i in nb.prange(n):
+    for blk in nb.prange((n + _GEOMETRY_BLOCK - 1) // _GEOMETRY_BLOCK):
+        lo = blk * _GEOMETRY_BLOCK
+        hi = min(n, lo + _GEOMETRY_BLOCK)
+        _geometry_table_block(lo, hi, pos, row, nbr, image, images, types, table, J, g, G,
+                              other, Jbar, want_mean, stored)
+
+
+@nb.njit(cache=True, inline="always")
+def _geometry_table_block(lo, hi, pos, row, nbr, image, images, types, table, J, g, G, other,
+                          Jbar, want_mean, stored):
+    """:func:`_geometry_kernel` for the pairs of atoms lo … hi − 1, their
+    exponentials first (:func:`_exp_arguments`)."""
+    k0 = row[lo]
+    xs, exs = _exp_arguments(lo, hi, pos, row, nbr, image, images, types, table)
+    for i in range(lo, hi):
         ti = types[i]
         for k in range(row[i], row[i + 1]):
             j = nbr[k]
@@ -575,7 +698,7 @@ def _geometry_kernel(pos, row, nbr, image, images, types, table, J, g, G, other,
                 Jk = 0.0
                 gk = 0.0
             else:
-                Jk, gk = _coupling(table, ti, tj, r2)
+                Jk, gk = _coupling_given_exp(table, ti, tj, r2, xs[k - k0], exs[k - k0])
             J[k] = Jk
             if stored:
                 G[k, 0] = gk * dx
@@ -587,13 +710,79 @@ def _geometry_kernel(pos, row, nbr, image, images, types, table, J, g, G, other,
                 Jbar[k] = 0.5 * (other[k] + Jk)
 
 
+@nb.njit(cache=True, inline="always")
+def _bethe_slater_values(r2, p0, p1, p2, rc2, scale, J, g, other, Jbar, want_mean):
+    """J, J'/r (into ``g``) and J̄ of a block of pairs from their r² (read
+    from ``J``) and 2^−k (``scale``), every array indexed from 0: a straight
+    loop without calls, which LLVM vectorises (its arithmetic is
+    exp_minus's and _coupling_form's, the same values)."""
+    for b in range(len(r2)):
+        d2 = r2[b]
+        x = d2 * p2
+        _, r = _exp_reduced(x)
+        Jk, gk = _bethe_slater(p0, p1, p2, x,
+                               _exp_range(x, _exp_of_reduced(r) * scale[b]))
+        outside = d2 >= rc2  # (NaN: not outside, and NaN results)
+        Jk = 0.0 if outside else Jk
+        J[b] = Jk
+        g[b] = 0.0 if outside else gk
+        if want_mean:
+            Jbar[b] = 0.5 * (other[b] + Jk)
+
+
+@nb.njit(cache=True, inline="always")
+def _bethe_slater_block(lo, hi, pos, row, nbr, image, images, rc2, p0, p1, p2, J, g, G,
+                        other, Jbar, want_mean, stored):
+    """:func:`_geometry_single`'s Bethe–Slater pass over the pairs of atoms
+    lo … hi − 1: r² of each (into J; the pair vectors into G when stored),
+    then 2^−k of each from its exponent bits, then J, J'/r and J̄
+    (:func:`_bethe_slater_values`; J'/r into a buffer of the block when G is
+    stored, then G = (J'/r) d)."""
+    k0 = row[lo]
+    k1 = row[hi]
+    for i in range(lo, hi):
+        for k in range(row[i], row[i + 1]):
+            dx, dy, dz, r2 = separation(pos, images, i, nbr[k], image[k])
+            J[k] = r2
+            if stored:
+                G[k, 0] = dx
+                G[k, 1] = dy
+                G[k, 2] = dz
+    r2 = J[k0:k1]
+    bits = np.empty(k1 - k0, dtype=np.int64)
+    for b in range(len(r2)):
+        e, _ = _exp_reduced(r2[b] * p2)
+        bits[b] = (1023 - np.int64(e)) << 52
+    scale = bits.view(np.float64)
+    gb = np.empty(k1 - k0) if stored else g[k0:k1]
+    if want_mean:
+        _bethe_slater_values(r2, p0, p1, p2, rc2, scale, r2, gb, other[k0:k1],
+                             Jbar[k0:k1], True)
+    else:
+        _bethe_slater_values(r2, p0, p1, p2, rc2, scale, r2, gb, other, Jbar, False)
+    if stored:
+        Gb = G[k0:k1]
+        for b in range(len(gb)):
+            Gb[b, 0] *= gb[b]
+            Gb[b, 1] *= gb[b]
+            Gb[b, 2] *= gb[b]
+
+
 @threaded(always=True)
 def _geometry_single(pos, row, nbr, image, images, rc2, form, p0, p1, p2, J, g, G, other,
                      Jbar):
-    """:func:`_geometry_kernel` for one species (one coupling)."""
+    """:func:`_geometry_kernel` for one species (one coupling); Bethe–Slater
+    in blocks of :data:`_GEOMETRY_BLOCK` atoms (:func:`_bethe_slater_block`:
+    the same values as one pair at a time)."""
     n = len(row) - 1
     want_mean = other.shape[0] > 0
     stored = G.shape[0] > 0
+    if form == _BETHE_SLATER:
+        for b in nb.prange((n + _GEOMETRY_BLOCK - 1) // _GEOMETRY_BLOCK):
+            _bethe_slater_block(b * _GEOMETRY_BLOCK, min(n, (b + 1) * _GEOMETRY_BLOCK), pos,
+                                row, nbr, image, images, rc2, p0, p1, p2, J, g, G, other,
+                                Jbar, want_mean, stored)
+        return
     for i in nb.prange(n):
         for k in range(row[i], row[i + 1]):
             dx, dy, dz, r2 = separation(pos, images, i, nbr[k], image[k])
@@ -1044,7 +1233,9 @@ _spin_pass_half_forces_field = threaded(reduce_threads=lambda: reduce_threads_se
 def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B, F, energies,
                    want_b, want_f, want_energy, want_energies, want_virial):
     """One evaluation from positions over a half pair list (each pair once,
-    nothing stored per pair), w = s_i·s_j − c, g = J'(r)/r, d = r_j + S − r_i:
+    nothing stored per pair; the Bethe–Slater exponentials of a block of
+    atoms' pairs first, :func:`_exp_arguments`), w = s_i·s_j − c,
+    g = J'(r)/r, d = r_j + S − r_i:
 
     B_i += J s_j,  B_j += J s_i,  F_i −= w g d,  F_j += w g d,
     e_i, e_j −= ½ J w,  W −= w g d ⊗ d.
@@ -1066,6 +1257,10 @@ def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B
         vxz = 0.0
         vxy = 0.0
         for i in range(bounds[t], bounds[t + 1]):
+            if (i - bounds[t]) % _GEOMETRY_BLOCK == 0:  # the next block's exponentials
+                k0 = row[i]
+                xs, exs = _exp_arguments(i, min(bounds[t + 1], i + _GEOMETRY_BLOCK), pos, row,
+                                         nbr, image, images, types, table)
             ti = types[i]
             sx = s[i, 0]
             sy = s[i, 1]
@@ -1083,7 +1278,7 @@ def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B
                 dx, dy, dz, r2 = separation(pos, images, i, j, image[k])
                 if r2 >= table[ti, tj, _RC2]:
                     continue
-                Jk, g = _coupling(table, ti, tj, r2)
+                Jk, g = _coupling_given_exp(table, ti, tj, r2, xs[k - k0], exs[k - k0])
                 ux = s[j, 0]
                 uy = s[j, 1]
                 uz = s[j, 2]
