@@ -603,21 +603,27 @@ def _exp_minus_block(x, ex, bits):
 
 @nb.njit(cache=True, inline="always")
 def _exp_arguments(lo, hi, pos, row, nbr, image, images, types, table):
-    """(x, ex, bits) for the pairs of atoms lo … hi − 1 of a multi-species
-    table: x = r²/J3² of the Bethe–Slater pairs (0 for the others), their
-    exp(−x) (:func:`_exp_minus_block`), indexed from the first pair."""
+    """(x, ex, d) for the pairs of atoms lo … hi − 1 of a multi-species
+    table, indexed from the first pair: x = r²/J3² of the Bethe–Slater pairs
+    (0 for the others), their exp(−x) (:func:`_exp_minus_block`), and each
+    pair's d_ij and r² (:func:`separation`: rows 0–2 and 3)."""
     k0 = row[lo]
     x = np.empty(row[hi] - k0)
+    d = np.empty((4, len(x)))
     for i in range(lo, hi):
         ti = types[i]
         for k in range(row[i], row[i + 1]):
             tj = types[nbr[k]]
-            _, _, _, r2 = separation(pos, images, i, nbr[k], image[k])
+            dx, dy, dz, r2 = separation(pos, images, i, nbr[k], image[k])
+            d[0, k - k0] = dx
+            d[1, k - k0] = dy
+            d[2, k - k0] = dz
+            d[3, k - k0] = r2
             bs = table[ti, tj, _FORM] == _BETHE_SLATER
             x[k - k0] = r2 * table[ti, tj, _P2] if bs else 0.0
     ex = np.empty(len(x))
     _exp_minus_block(x, ex, np.empty(len(x), dtype=np.int64))
-    return x, ex
+    return x, ex, d
 
 
 @nb.njit(cache=True, inline="always")
@@ -687,13 +693,14 @@ def _geometry_table_block(lo, hi, pos, row, nbr, image, images, types, table, J,
     """:func:`_geometry_kernel` for the pairs of atoms lo … hi − 1, their
     exponentials first (:func:`_exp_arguments`)."""
     k0 = row[lo]
-    xs, exs = _exp_arguments(lo, hi, pos, row, nbr, image, images, types, table)
+    xs, exs, ds = _exp_arguments(lo, hi, pos, row, nbr, image, images, types, table)
     for i in range(lo, hi):
         ti = types[i]
         for k in range(row[i], row[i + 1]):
             j = nbr[k]
             tj = types[j]
-            dx, dy, dz, r2 = separation(pos, images, i, j, image[k])
+            b = k - k0
+            dx, dy, dz, r2 = ds[0, b], ds[1, b], ds[2, b], ds[3, b]
             if r2 >= table[ti, tj, _RC2]:
                 Jk = 0.0
                 gk = 0.0
@@ -1259,8 +1266,8 @@ def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B
         for i in range(bounds[t], bounds[t + 1]):
             if (i - bounds[t]) % _GEOMETRY_BLOCK == 0:  # the next block's exponentials
                 k0 = row[i]
-                xs, exs = _exp_arguments(i, min(bounds[t + 1], i + _GEOMETRY_BLOCK), pos, row,
-                                         nbr, image, images, types, table)
+                xs, exs, ds = _exp_arguments(i, min(bounds[t + 1], i + _GEOMETRY_BLOCK), pos,
+                                             row, nbr, image, images, types, table)
             ti = types[i]
             sx = s[i, 0]
             sy = s[i, 1]
@@ -1275,10 +1282,11 @@ def _direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B
             for k in range(row[i], row[i + 1]):
                 j = nbr[k]
                 tj = types[j]
-                dx, dy, dz, r2 = separation(pos, images, i, j, image[k])
+                b = k - k0
+                dx, dy, dz, r2 = ds[0, b], ds[1, b], ds[2, b], ds[3, b]
                 if r2 >= table[ti, tj, _RC2]:
                     continue
-                Jk, g = _coupling_given_exp(table, ti, tj, r2, xs[k - k0], exs[k - k0])
+                Jk, g = _coupling_given_exp(table, ti, tj, r2, xs[b], exs[b])
                 ux = s[j, 0]
                 uy = s[j, 1]
                 uz = s[j, 2]
