@@ -601,7 +601,7 @@ def _exp_minus_block(x, ex, bits):
         ex[b] = _exp_range(xb, _exp_of_reduced(r) * scale[b])
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _exp_arguments(lo, hi, pos, row, nbr, image, images, types, table):
     """(x, ex, d) for the pairs of atoms lo … hi − 1 of a multi-species
     table, indexed from the first pair: x = r²/J3² of the Bethe–Slater pairs
@@ -630,9 +630,10 @@ def _exp_arguments(lo, hi, pos, row, nbr, image, images, types, table):
 def _coupling_given_exp(table, ti, tj, r2, x, ex):
     """:func:`_coupling` with the Bethe–Slater pair's x = r²/J3² and
     exp(−x) given (:func:`_exp_arguments`): the same values."""
-    if table[ti, tj, _FORM] == _BETHE_SLATER:
+    form = table[ti, tj, _FORM]
+    if form == _BETHE_SLATER:
         return _bethe_slater(table[ti, tj, _P0], table[ti, tj, _P1], table[ti, tj, _P2], x, ex)
-    return _coupling(table, ti, tj, r2)
+    return _other_form(form, table[ti, tj, _P0], table[ti, tj, _P1], table[ti, tj, _P2], r2)
 
 
 @nb.njit(cache=True, inline="always")
@@ -649,6 +650,13 @@ def _coupling_form(form, p0, p1, p2, r2):
     if form == _BETHE_SLATER:
         x = r2 * p2
         return _bethe_slater(p0, p1, p2, x, exp_minus(x))
+    return _other_form(form, p0, p1, p2, r2)
+
+
+@nb.njit(cache=True, inline="always")
+def _other_form(form, p0, p1, p2, r2):
+    """:func:`_coupling_form` but Bethe–Slater (whose exponentials the passes
+    take a block at a time): the cubic form, else 0."""
     if form == _CUBIC:
         r = np.sqrt(r2)
         if r >= p1:
@@ -687,7 +695,7 @@ def _geometry_kernel(pos, row, nbr, image, images, types, table, J, g, G, other,
                               other, Jbar, want_mean, stored)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _geometry_table_block(lo, hi, pos, row, nbr, image, images, types, table, J, g, G, other,
                           Jbar, want_mean, stored):
     """:func:`_geometry_kernel` for the pairs of atoms lo … hi − 1, their
@@ -737,7 +745,7 @@ def _bethe_slater_values(r2, p0, p1, p2, rc2, scale, J, g, other, Jbar, want_mea
             Jbar[b] = 0.5 * (other[b] + Jk)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _bethe_slater_block(lo, hi, pos, row, nbr, image, images, rc2, p0, p1, p2, J, g, G,
                         other, Jbar, want_mean, stored):
     """:func:`_geometry_single`'s Bethe–Slater pass over the pairs of atoms
@@ -797,7 +805,7 @@ def _geometry_single(pos, row, nbr, image, images, rc2, form, p0, p1, p2, J, g, 
                 Jk = 0.0
                 gk = 0.0
             else:
-                Jk, gk = _coupling_form(form, p0, p1, p2, r2)
+                Jk, gk = _other_form(form, p0, p1, p2, r2)
             J[k] = Jk
             if stored:
                 G[k, 0] = gk * dx
