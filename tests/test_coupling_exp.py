@@ -110,7 +110,7 @@ def test_blocked_geometry_is_the_one_pair_formula_to_the_bit(twin, stored, mean,
         assert (J[inside][r > 2.67] == 0.0).all() and (J[inside][r > 2.67] == 0.0).sum() > 100
 
 
-@pytest.mark.parametrize("twin", ["serial", "parallel"])
+@pytest.mark.parametrize("twin", ["serial"])  # (its threaded twin: the same block function)
 def test_species_table_pass_equals_the_one_species_pass_to_the_bit(twin):
     """Two species with one coupling: the table-driven pass (its exponentials
     taken a block at a time, _exp_arguments) gives the one-species bits."""

@@ -745,7 +745,7 @@ def _bethe_slater_values(r2, p0, p1, p2, rc2, scale, J, g, other, Jbar, want_mea
             Jbar[b] = 0.5 * (other[b] + Jk)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _bethe_slater_block(lo, hi, pos, row, nbr, image, images, rc2, p0, p1, p2, J, g, G,
                         other, Jbar, want_mean, stored):
     """:func:`_geometry_single`'s Bethe–Slater pass over the pairs of atoms
