@@ -1,8 +1,8 @@
-"""The Bethe–Slater couplings' exp(−x) (exchange.exp_minus) and the blocked
-geometry pass that vectorises it (exchange._bethe_slater_block): within one
-ulp of the exact exponential, and the same bits whether a pair is computed
-alone (the evaluation path, _coupling_form) or in a block (the integrators'
-geometry pass, serial or threaded), NaN kept."""
+"""The Bethe–Slater couplings' exp(−x) (exchange.exp_minus) and the passes
+that take it a block of pairs at a time: within one ulp of the exact
+exponential, and the same bits in the single-species pass (its exponential
+fused into one loop with J and J'/r: exchange._bethe_slater_block, serial or
+threaded) as from exp_minus and the formula pair by pair, NaN kept."""
 
 import numba as nb
 import numpy as np
@@ -17,24 +17,30 @@ EXTENDED = np.finfo(np.longdouble).nmant >= 63  # x86's 80-bit long double
 
 @nb.njit(cache=True)
 def _exp_minus_all(x, out):
-    for i in range(len(x)):
-        out[i] = ex.exp_minus(x[i])
+    ex.exp_minus(x, out, np.empty(len(x), dtype=np.int64))
 
 
 @nb.njit(cache=True)
-def _one_pair_at_a_time(pos, row, nbr, image, images, rc2, form, p0, p1, p2, J, g, D):
-    """J, J'/r and d of every pair by _coupling_form, one at a time."""
+def _one_pair_at_a_time(pos, row, nbr, image, images, rc2, p0, p1, p2, J, g, D):
+    """J, J'/r and d of every pair: exp_minus over all of them, then the
+    Bethe–Slater formula pair by pair."""
+    x = np.empty(len(J))
     for i in range(len(row) - 1):
         for k in range(row[i], row[i + 1]):
             dx, dy, dz, r2 = separation(pos, images, i, nbr[k], image[k])
             D[k, 0] = dx
             D[k, 1] = dy
             D[k, 2] = dz
-            if r2 >= rc2:
-                J[k] = 0.0
-                g[k] = 0.0
-            else:
-                J[k], g[k] = ex._coupling_form(form, p0, p1, p2, r2)
+            x[k] = r2 * p2
+    e = np.empty(len(J))
+    ex.exp_minus(x, e, np.empty(len(J), dtype=np.int64))
+    for k in range(len(J)):
+        r2 = D[k, 0] * D[k, 0] + D[k, 1] * D[k, 1] + D[k, 2] * D[k, 2]
+        if r2 >= rc2:
+            J[k] = 0.0
+            g[k] = 0.0
+        else:
+            J[k], g[k] = ex._bethe_slater(p0, p1, p2, x[k], e[k])
 
 
 def test_exp_minus_is_within_one_ulp_of_the_exact_value():
@@ -80,7 +86,8 @@ def test_blocked_geometry_is_the_one_pair_formula_to_the_bit(twin, stored, mean,
     bs = ex.BetheSlater(0.0446928, 0.003496, J3)
     params = (16.0, ex._BETHE_SLATER, *bs._params)
     J0, g0, D = np.empty(m), np.empty(m), np.empty((m, 3))
-    _one_pair_at_a_time(pos, pairs.row, pairs.j, pairs.image, pairs.images, *params, J0, g0, D)
+    _one_pair_at_a_time(pos, pairs.row, pairs.j, pairs.image, pairs.images, params[0],
+                        *params[2:], J0, g0, D)
     other = rng.random(m) if mean else np.zeros(0)
     J = np.full(m, -1.0)
     g = np.full(m, -1.0) if not stored else np.zeros(0)

@@ -536,16 +536,13 @@ def _copy_positions(positions, buffer):
 # x = k ln2 + r, |r| ≤ ln2/2 (Cody–Waite, ln2 in two parts),
 # exp(−x) = 2^−k exp(−r), exp(−r) by its Taylor series to degree 13 (the
 # rest below 2e-17), written 1 + (y + y² q(y)) so that the last rounding is
-# the one of 1 + (…): at most 0.96 ulp from the exact value (the C library's
-# exp: 0.51; they differ in the last bit for one argument in ten;
-# tests/test_exchange_storage.py). 2^−k is a table entry for one pair, built
-# from its exponent bits for a block of pairs (the same double). Arguments
+# the one of 1 + (…): within one ulp of the exact value
+# (tests/test_coupling_exp.py). 2^−k is built from its exponent bits. Arguments
 # above _EXP_X_MAX (exp(−x) < 2^−1021) give 0, NaN gives NaN.
 _INV_LN2 = 1.4426950408889634
 _LN2_HI = 6.93147180369123816490e-01
 _LN2_LO = 1.90821492927058770002e-10
 _EXP_X_MAX = 708.0
-_TWO_TO_MINUS = np.array([2.0 ** -k for k in range(1022)])
 
 
 @nb.njit(cache=True, inline="always")
@@ -556,6 +553,13 @@ def _exp_reduced(x):
     x = x if x > 0.0 else 0.0
     k = np.floor(x * _INV_LN2 + 0.5)
     return k, (x - k * _LN2_HI) - k * _LN2_LO
+
+
+@nb.njit(cache=True, inline="always")
+def _exponent_bits(x):
+    """The bits of the double 2^−k of exp(−x) = 2^−k exp(−r) (:func:`_exp_reduced`)."""
+    k, _ = _exp_reduced(x)
+    return (1023 - np.int64(k)) << 52
 
 
 @nb.njit(cache=True, inline="always")
@@ -580,20 +584,12 @@ def _exp_range(x, e):
 
 
 @nb.njit(cache=True, inline="always")
-def exp_minus(x):
-    """exp(−x) for x ≥ 0 (see the comment above _EXP_X_MAX): one value."""
-    k, r = _exp_reduced(x)
-    return _exp_range(x, _exp_of_reduced(r) * _TWO_TO_MINUS[np.int64(k)])
-
-
-@nb.njit(cache=True, inline="always")
-def _exp_minus_block(x, ex, bits):
-    """ex[b] = exp_minus(x[b]) for a block of arguments, 2^−k from its
-    exponent bits (``bits``: an int64 scratch of the same length): two
-    straight loops, which LLVM vectorises; the same values."""
+def exp_minus(x, ex, bits):
+    """ex[b] = exp(−x[b]) for x ≥ 0 (see the comment above _EXP_X_MAX), 2^−k
+    from its exponent bits (``bits``: an int64 scratch of the same length):
+    two straight loops, which LLVM vectorises."""
     for b in range(len(x)):
-        k, _ = _exp_reduced(x[b])
-        bits[b] = (1023 - np.int64(k)) << 52
+        bits[b] = _exponent_bits(x[b])
     scale = bits.view(np.float64)
     for b in range(len(x)):
         xb = x[b]
@@ -605,7 +601,7 @@ def _exp_minus_block(x, ex, bits):
 def _exp_arguments(lo, hi, pos, row, nbr, image, images, types, table):
     """(x, ex, d) for the pairs of atoms lo … hi − 1 of a multi-species
     table, indexed from the first pair: x = r²/J3² of the Bethe–Slater pairs
-    (0 for the others), their exp(−x) (:func:`_exp_minus_block`), and each
+    (0 for the others), their exp(−x) (:func:`exp_minus`), and each
     pair's d_ij and r² (:func:`separation`: rows 0–2 and 3)."""
     k0 = row[lo]
     x = np.empty(row[hi] - k0)
@@ -622,14 +618,14 @@ def _exp_arguments(lo, hi, pos, row, nbr, image, images, types, table):
             bs = table[ti, tj, _FORM] == _BETHE_SLATER
             x[k - k0] = r2 * table[ti, tj, _P2] if bs else 0.0
     ex = np.empty(len(x))
-    _exp_minus_block(x, ex, np.empty(len(x), dtype=np.int64))
+    exp_minus(x, ex, np.empty(len(x), dtype=np.int64))
     return x, ex, d
 
 
 @nb.njit(cache=True, inline="always")
 def _coupling_given_exp(table, ti, tj, r2, x, ex):
-    """:func:`_coupling` with the Bethe–Slater pair's x = r²/J3² and
-    exp(−x) given (:func:`_exp_arguments`): the same values."""
+    """J(r) and J'(r)/r for species ti, tj from the parameter table, a
+    Bethe–Slater pair's x = r²/J3² and exp(−x) given (:func:`_exp_arguments`)."""
     form = table[ti, tj, _FORM]
     if form == _BETHE_SLATER:
         return _bethe_slater(table[ti, tj, _P0], table[ti, tj, _P1], table[ti, tj, _P2], x, ex)
@@ -644,19 +640,10 @@ def _bethe_slater(p0, p1, p2, x, ex):
 
 
 @nb.njit(cache=True, inline="always")
-def _coupling_form(form, p0, p1, p2, r2):
-    """J(r) and J'(r)/r of a compiled coupling form with parameters p0..p2:
-    Bethe–Slater (J1, J2, 1/J3²), cubic (J0, rc, 1/rc)."""
-    if form == _BETHE_SLATER:
-        x = r2 * p2
-        return _bethe_slater(p0, p1, p2, x, exp_minus(x))
-    return _other_form(form, p0, p1, p2, r2)
-
-
-@nb.njit(cache=True, inline="always")
 def _other_form(form, p0, p1, p2, r2):
-    """:func:`_coupling_form` but Bethe–Slater (whose exponentials the passes
-    take a block at a time): the cubic form, else 0."""
+    """J(r) and J'(r)/r of the compiled coupling forms but Bethe–Slater (J1,
+    J2, 1/J3²; its exponentials the passes take a block at a time): cubic
+    (J0, rc, 1/rc), else 0."""
     if form == _CUBIC:
         r = np.sqrt(r2)
         if r >= p1:
@@ -664,13 +651,6 @@ def _other_form(form, p0, p1, p2, r2):
         y = 1.0 - r * p2
         return p0 * y * y * y, -3.0 * p0 * p2 * y * y / r
     return 0.0, 0.0
-
-
-@nb.njit(cache=True, inline="always")
-def _coupling(table, ti, tj, r2):
-    """J(r) and J'(r)/r for species ti, tj from the parameter table."""
-    return _coupling_form(table[ti, tj, _FORM], table[ti, tj, _P0], table[ti, tj, _P1],
-                          table[ti, tj, _P2], r2)
 
 
 #: Atoms per block of the passes that take the Bethe–Slater exponentials of
@@ -713,7 +693,7 @@ def _geometry_table_block(lo, hi, pos, row, nbr, image, images, types, table, J,
                 Jk = 0.0
                 gk = 0.0
             else:
-                Jk, gk = _coupling_given_exp(table, ti, tj, r2, xs[k - k0], exs[k - k0])
+                Jk, gk = _coupling_given_exp(table, ti, tj, r2, xs[b], exs[b])
             J[k] = Jk
             if stored:
                 G[k, 0] = gk * dx
@@ -729,8 +709,8 @@ def _geometry_table_block(lo, hi, pos, row, nbr, image, images, types, table, J,
 def _bethe_slater_values(r2, p0, p1, p2, rc2, scale, J, g, other, Jbar, want_mean):
     """J, J'/r (into ``g``) and J̄ of a block of pairs from their r² (read
     from ``J``) and 2^−k (``scale``), every array indexed from 0: a straight
-    loop without calls, which LLVM vectorises (its arithmetic is
-    exp_minus's and _coupling_form's, the same values)."""
+    loop without calls, which LLVM vectorises (the arithmetic of
+    :func:`exp_minus` and :func:`_bethe_slater`, the same values)."""
     for b in range(len(r2)):
         d2 = r2[b]
         x = d2 * p2
@@ -766,8 +746,7 @@ def _bethe_slater_block(lo, hi, pos, row, nbr, image, images, rc2, p0, p1, p2, J
     r2 = J[k0:k1]
     bits = np.empty(k1 - k0, dtype=np.int64)
     for b in range(len(r2)):
-        e, _ = _exp_reduced(r2[b] * p2)
-        bits[b] = (1023 - np.int64(e)) << 52
+        bits[b] = _exponent_bits(r2[b] * p2)
     scale = bits.view(np.float64)
     gb = np.empty(k1 - k0) if stored else g[k0:k1]
     if want_mean:
