@@ -175,28 +175,68 @@ def test_predictor_extrapolates_polynomials_of_its_order_exactly(order):
                        atol=1e-9)
 
 
+def test_predictor_least_squares_row_fits_degree_12_through_all_16():
+    """The predictor's last row continues any polynomial of degree ≤ 12 from all
+    16 values, is the least-squares fit's (the same functional computed in
+    floating point by a QR factorisation), and its noise gain Σ|c_m| is
+    below a seventh of exact order 12's (8191)."""
+    from ase_spin.md import kernels
+
+    depth = kernels.PREDICTOR_DEPTH
+    c = kernels._COEFFICIENTS[depth - 1]
+    assert depth == 16 and kernels.LEAST_SQUARES_DEGREE == 12
+    # rows 12–14 (a full-history choice while the history refills): order 11
+    for k in (12, 13, 14):
+        assert np.array_equal(kernels._COEFFICIENTS[k], kernels._COEFFICIENTS[11])
+    t = -np.arange(depth) / depth  # newest first; the next value at t = 1/depth
+    rng = np.random.default_rng(4)
+    for degree in range(13):
+        a = rng.normal(size=degree + 1)
+        values = sum(a[j] * t**j for j in range(degree + 1))
+        expected = sum(a[j] * depth ** -j for j in range(degree + 1))
+        assert abs(c @ values - expected) <= 1e-10 * np.abs(c).sum()
+    from scipy.linalg import solve_triangular
+
+    # c = V (VᵀV)⁻¹ e = Q R⁻ᵀ e (V = QR, condition ~3e9: agreement to ~1e-6)
+    q, r = np.linalg.qr(np.vander(t, 13, increasing=True))
+    reference = q @ solve_triangular(r.T, depth ** -np.arange(13.0), lower=True)
+    assert np.allclose(c, reference, rtol=0, atol=1e-4)
+    assert np.abs(c).sum() < 8191 / 7
+    # with noise on each value it errs less than exact order 12
+    noise = 1e-12 * rng.normal(size=(2000, depth))
+    assert np.abs(noise @ c).max() < 0.25 * np.abs(noise @ kernels._COEFFICIENTS[12]).max()
+
+
 def test_predictor_order_choice_is_the_order_with_the_smallest_error():
-    """best_extrapolation_order (one backward-difference table) picks the order
-    whose coefficient-form extrapolation is closest on the sampled rows."""
+    """best_extrapolation_order (one backward-difference table, and the
+    least-squares row with a full history) picks the row whose
+    coefficient-form extrapolation is closest on the sampled rows."""
     from collections import deque
 
     from ase_spin.md import kernels
 
+    depth = kernels.PREDICTOR_DEPTH
     rng = np.random.default_rng(5)
-    t = np.arange(13)[:, None, None]
-    for omega in (0.05, 0.3, 1.0):
-        phase = rng.uniform(0, 6, size=(1, 40, 3))
-        path = np.cos(omega * t + phase) + 1e-9 * rng.normal(size=(13, 40, 3))
-        for n in (1, 5, 12):
-            history = deque(path[12 - n:12], maxlen=12)
-            rows = np.arange(0, 40, 3)
-            target = path[12]
-            newest_first = [history[-1 - m] if m < n else history[-1] for m in range(12)]
-            errors = [max(abs(sum(c * h[r] for c, h in zip(kernels._COEFFICIENTS[k],
-                                                           newest_first)) - target[r]).max()
-                          for r in rows) for k in range(n)]
-            assert kernels.best_extrapolation_order(history, target, rows) == int(
-                np.argmin(errors))
+    t = np.arange(depth + 1)[:, None, None]
+    chosen = set()
+    for omega in (0.05, 0.1, 0.3, 1.0):
+        for noise in (1e-9, 1e-13):
+            phase = rng.uniform(0, 6, size=(1, 40, 3))
+            path = np.cos(omega * t + phase) + noise * rng.normal(size=(depth + 1, 40, 3))
+            for n in (1, 5, 12, 15, depth):
+                history = deque(path[depth - n:depth], maxlen=depth)
+                rows = np.arange(0, 40, 3)
+                target = path[depth]
+                newest_first = [history[-1 - m] if m < n else history[-1] for m in range(depth)]
+                candidates = (list(range(min(n, kernels.EXACT_ORDERS)))
+                              + ([depth - 1] if n == depth else []))
+                errors = [max(abs(sum(c * h[r] for c, h in zip(kernels._COEFFICIENTS[k],
+                                                               newest_first)) - target[r]).max()
+                              for r in rows) for k in candidates]
+                got = kernels.best_extrapolation_order(history, target, rows)
+                assert got == candidates[int(np.argmin(errors))]
+                chosen.add(got)
+    assert depth - 1 in chosen  # the least-squares row wins somewhere
 
 
 def test_predictor_order_choice_kept_table_is_the_whole_table():
@@ -211,7 +251,7 @@ def test_predictor_order_choice_kept_table_is_the_whole_table():
     from ase_spin.md import kernels
 
     rng = np.random.default_rng(11)
-    n_rows, depth = 40, 12
+    n_rows, depth = 40, kernels.PREDICTOR_DEPTH
     rows = np.arange(0, n_rows, 3)
     phase = rng.uniform(0, 6, size=(n_rows, 3))
     kept = kernels.difference_table(len(rows))

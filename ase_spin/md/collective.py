@@ -78,10 +78,11 @@ LARGE_SYSTEM = 500_000
 
 def predictor_depth(stages, natoms=0):
     """Increments kept per stage for the predictor: all
-    :data:`~ase_spin.md.kernels.PREDICTOR_DEPTH` (12, extrapolation up to order
-    11) for the one-stage second-order step (288 bytes per atom; each order is
-    ~10× more accurate than the one below at 0.1 fs, and the solve takes about
-    one sweep less per factor 30), fewer for the compositions (5 stages: 6 each,
+    :data:`~ase_spin.md.kernels.PREDICTOR_DEPTH` (16: extrapolation up to order
+    14, and a least-squares fit through all 16) for the one-stage second-order
+    step (384 bytes per atom; each order is ~10× more accurate than the one
+    below at 0.1 fs until round-off takes over, and the solve takes about one
+    sweep less per factor 30), fewer for the compositions (5 stages: 6 each,
     9 stages: 4 each): at most 36 arrays of (N, 3) for all stages, 864 bytes per
     atom, what order 6 kept before (4 per stage). From :data:`LARGE_SYSTEM`
     atoms, 4 per stage (96 bytes per atom and stage; ~6 more sweeps per step

@@ -81,7 +81,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     if predict:
         W = np.empty_like(s)
         extrapolate(coef, hs[0], hs[1], hs[2], hs[3], hs[4], hs[5], hs[6], hs[7],  # noqa: F821
-                    hs[8], hs[9], hs[10], hs[11], s, W)
+                    hs[8], hs[9], hs[10], hs[11], hs[12], hs[13], hs[14], hs[15], s, W)
     qt_used = q
     first = True
     settled = False
@@ -187,8 +187,8 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     if predict and n_history > 0:
         increment = W - s
         order = best_order(n_history, hs[0], hs[1], hs[2], hs[3], hs[4], hs[5],  # noqa: F821
-                           hs[6], hs[7], hs[8], hs[9], hs[10], hs[11], increment, probe,
-                           probe, kept, kept_n)
+                           hs[6], hs[7], hs[8], hs[9], hs[10], hs[11], hs[12], hs[13],
+                           hs[14], hs[15], increment, probe, probe, kept, kept_n)
     return (_DONE, qt, P, stilde, carry_qt, carry, FLt, W, Wnext, theta, iterations,
             geometries, order, settle, increment, one_sweep, settled_in)
 
@@ -208,7 +208,9 @@ def _history(ring, stage, head, count):
             _newest(ring, stage, head, count, 4), _newest(ring, stage, head, count, 5),
             _newest(ring, stage, head, count, 6), _newest(ring, stage, head, count, 7),
             _newest(ring, stage, head, count, 8), _newest(ring, stage, head, count, 9),
-            _newest(ring, stage, head, count, 10), _newest(ring, stage, head, count, 11))
+            _newest(ring, stage, head, count, 10), _newest(ring, stage, head, count, 11),
+            _newest(ring, stage, head, count, 12), _newest(ring, stage, head, count, 13),
+            _newest(ring, stage, head, count, 14), _newest(ring, stage, head, count, 15))
 
 
 def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, carry_mid,
@@ -354,7 +356,7 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
             W = np.empty_like(s)
             extrapolate(coefficients[min(orders[stage], count - 1)], hs[0], hs[1],  # noqa: F821
                         hs[2], hs[3], hs[4], hs[5], hs[6], hs[7], hs[8], hs[9], hs[10], hs[11],
-                        s, W)
+                        hs[12], hs[13], hs[14], hs[15], s, W)
             stilde = np.zeros_like(s)
             carry = np.zeros_like(s)
             use_local = local[stage]
@@ -387,8 +389,8 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
             increment = W - s
             new_orders[stage] = best_order(count, hs[0], hs[1], hs[2], hs[3],  # noqa: F821
                                            hs[4], hs[5], hs[6], hs[7], hs[8], hs[9], hs[10],
-                                           hs[11], increment, probe, probe, kept[stage],
-                                           kept_n[stage:stage + 1])
+                                           hs[11], hs[12], hs[13], hs[14], hs[15], increment,
+                                           probe, probe, kept[stage], kept_n[stage:stage + 1])
             increments[stage] = increment
             s, carry_s = stilde, carry
             its_step += its

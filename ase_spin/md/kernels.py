@@ -982,24 +982,69 @@ def kick_drift(nthreads, p, a, f, carry_p, P, carry_mid, q, m, h, carry_q, qt, c
             big = largest[t]
     return np.sqrt(w2), at, d, big
 
-#: Midpoints the predictor keeps per stage at most (extrapolation orders 0 to 11).
-#: At 0.1 fs on fcc Co each order is ~10× more accurate than the one below (max
-#: error 8e-6 at order 3, 2e-10 at 7, 1e-13 at 10, where round-off takes over),
-#: and the midpoint solve takes one sweep less per factor 1/θ ≈ 30 (θ the
-#: contraction per sweep); see docs/benchmarks.md, "Small systems".
-PREDICTOR_DEPTH = 12
+#: Midpoints the predictor keeps per stage at most: extrapolation orders 0 to
+#: 11 from the newest 1 … 12, and in the last row a least-squares polynomial of
+#: degree :data:`LEAST_SQUARES_DEGREE` through all 16. At 0.1 fs on fcc Co each
+#: order is ~10× more accurate than the one below (max error 8e-6 at order 3,
+#: 2e-10 at 7) until, from order ~10 (~2e-12 at 0.15 fs), the last digits of
+#: the increments (the midpoints are solved to ``tol``, ~1e-15) are amplified by
+#: Σ|c_m| = 2^(k+1) − 1 and take over; the least-squares row, of degree 12 but
+#: Σ|c_m| = 1125 instead of 8191, predicts 4–7× better there (the midpoint solve
+#: takes one sweep less per factor 1/θ ≈ 30–100, θ the contraction per sweep);
+#: see docs/benchmarks.md, "The predictor's least-squares row". Rows 12–14 are
+#: order 11 again: what the last row falls back to while fewer than 16
+#: increments are kept (exact orders 12–14 would only amplify the noise more).
+PREDICTOR_DEPTH = 16
+#: Degree of the polynomial fitted to all :data:`PREDICTOR_DEPTH` increments in
+#: the predictor's last row (:func:`_coefficients`).
+LEAST_SQUARES_DEGREE = 12
+#: The exact extrapolation orders the predictor chooses from (0 … 11).
+EXACT_ORDERS = 12
+
+
+def _least_squares_row(degree, depth):
+    """Coefficients c_m (m = 0 newest … depth − 1) of the value at the next step
+    of the least-squares polynomial of ``degree`` through the last ``depth``
+    values, at times 0, −1, …: c = V (VᵀV)⁻¹ e with V_mk = (−m)^k, e = (1, …, 1)
+    (the value at t = 1), solved in exact rational arithmetic. A polynomial of
+    degree ≤ ``degree`` is extrapolated exactly; the noise gain Σ|c_m| is far
+    smaller than exact extrapolation's of that degree."""
+    from fractions import Fraction
+
+    n = degree + 1
+    V = [[Fraction((-m) ** k) for k in range(n)] for m in range(depth)]
+    A = [[sum(V[m][a] * V[m][b] for m in range(depth)) for b in range(n)] + [Fraction(1)]
+         for a in range(n)]
+    for col in range(n):  # Gauss–Jordan on (VᵀV | e), exact: no pivoting needed
+        piv = A[col][col]
+        A[col] = [x / piv for x in A[col]]
+        for r in range(n):
+            if r != col and A[r][col] != 0:
+                f = A[r][col]
+                A[r] = [x - f * y for x, y in zip(A[r], A[col])]
+    y = [A[k][n] for k in range(n)]
+    return [float(sum(V[m][k] * y[k] for k in range(n))) for m in range(depth)]
 
 
 def _coefficients(depth):
-    """Row k: polynomial extrapolation of order k from the last k+1 values, newest
-    first, c_m = (−1)^m C(k+1, m+1) (zero beyond m = k)."""
+    """Row k ≤ 11: polynomial extrapolation of order k from the last k+1
+    values, newest first, c_m = (−1)^m C(k+1, m+1) (zero beyond m = k); rows
+    12 … depth − 2: order 11 again; the last row (the one that reads all
+    ``depth`` values, as an order would): the least-squares polynomial of
+    degree :data:`LEAST_SQUARES_DEGREE` through them (:func:`_least_squares_row`)."""
     from math import comb
 
-    return np.array([[(-1.0) ** m * comb(k + 1, m + 1) if m <= k else 0.0
-                      for m in range(depth)] for k in range(depth)])
+    rows = [[(-1.0) ** m * comb(min(k, EXACT_ORDERS - 1) + 1, m + 1)
+             if m <= min(k, EXACT_ORDERS - 1) else 0.0 for m in range(depth)]
+            for k in range(depth - 1)]
+    rows.append(_least_squares_row(LEAST_SQUARES_DEGREE, depth))
+    return np.array(rows)
 
 
 _COEFFICIENTS = _coefficients(PREDICTOR_DEPTH)
+#: The least-squares row: its prediction, judged beside the exact orders by
+#: _best_order (a compile-time constant there).
+_LEAST_SQUARES = np.ascontiguousarray(_COEFFICIENTS[PREDICTOR_DEPTH - 1])
 # The first four orders (Langevin's predictor of remainders): row k is order k.
 _EXTRAPOLATION = np.ascontiguousarray(_COEFFICIENTS[:4, :4])
 
@@ -1044,32 +1089,90 @@ def _increment(W, s, out):
 
 
 @nb.njit(cache=True, inline="always")
-def _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, i, k):
-    """Σ_m c_m h_m[i, k], m = 0 … 11 in order (the zero coefficients of a lower
+def _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, h12, h13, h14,
+                       h15, i, k):
+    """Σ_m c_m h_m[i, k], m = 0 … 15 in order (the zero coefficients of a lower
     order add +0.0: the same value; one straight sum, which numba compiles far
     better than a loop over a tuple or a chain of tests)."""
     return (c[0] * h0[i, k] + c[1] * h1[i, k] + c[2] * h2[i, k] + c[3] * h3[i, k]
             + c[4] * h4[i, k] + c[5] * h5[i, k] + c[6] * h6[i, k] + c[7] * h7[i, k]
-            + c[8] * h8[i, k] + c[9] * h9[i, k] + c[10] * h10[i, k] + c[11] * h11[i, k])
+            + c[8] * h8[i, k] + c[9] * h9[i, k] + c[10] * h10[i, k] + c[11] * h11[i, k]
+            + c[12] * h12[i, k] + c[13] * h13[i, k] + c[14] * h14[i, k]
+            + c[15] * h15[i, k])
+
+
+#: Below this many atoms :func:`_extrapolate` takes its blocks of flat loops
+#: (the arrays in cache: the arithmetic is the cost, and it vectorises), from it
+#: one loop over rows (the arrays streamed from memory: measured faster there,
+#: 32 000 atoms: ~190 against ~310 µs on two threads).
+_EXTRAPOLATE_FLAT_BELOW = 1500
+#: Atoms per block of the flat loops.
+_EXTRAPOLATE_BLOCK = 256
 
 
 @threaded()
-def _extrapolate(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, base, out):
-    for i in nb.prange(h0.shape[0]):
-        x = base[i, 0] + _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10,
-                                            h11, i, 0)
-        y = base[i, 1] + _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10,
-                                            h11, i, 1)
-        z = base[i, 2] + _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10,
-                                            h11, i, 2)
-        norm = np.sqrt(x * x + y * y + z * z)
-        if norm > 0.0:
-            x /= norm
-            y /= norm
-            z /= norm
-        out[i, 0] = x
-        out[i, 1] = y
-        out[i, 2] = z
+def _extrapolate(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, h12, h13, h14, h15,
+                 base, out):
+    """out = normalise(base + Σ_m c_m h_m) row by row (C-contiguous (n, 3)
+    arrays). A small system a block of atoms at a time: base + Σ over the
+    block's flat values in one straight loop over the 16 streams, then the
+    norms, then the rows divided by them — loops that vectorise, where one
+    loop per row did not (N = 500, 16 terms: 7.8 → 4.9 µs); a large one in
+    one loop over rows. Each value is computed as :func:`_extrapolated_deep`
+    computes it either way: the same bits."""
+    n = h0.shape[0]
+    if n >= _EXTRAPOLATE_FLAT_BELOW:
+        for i in nb.prange(n):
+            x = base[i, 0] + _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10,
+                                                h11, h12, h13, h14, h15, i, 0)
+            y = base[i, 1] + _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10,
+                                                h11, h12, h13, h14, h15, i, 1)
+            z = base[i, 2] + _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10,
+                                                h11, h12, h13, h14, h15, i, 2)
+            norm = np.sqrt(x * x + y * y + z * z)
+            if norm > 0.0:
+                x /= norm
+                y /= norm
+                z /= norm
+            out[i, 0] = x
+            out[i, 1] = y
+            out[i, 2] = z
+        return
+    f0, f1, f2, f3 = h0.reshape(-1), h1.reshape(-1), h2.reshape(-1), h3.reshape(-1)
+    f4, f5, f6, f7 = h4.reshape(-1), h5.reshape(-1), h6.reshape(-1), h7.reshape(-1)
+    f8, f9, f10, f11 = h8.reshape(-1), h9.reshape(-1), h10.reshape(-1), h11.reshape(-1)
+    f12, f13, f14, f15 = h12.reshape(-1), h13.reshape(-1), h14.reshape(-1), h15.reshape(-1)
+    fb = base.reshape(-1)
+    c0, c1, c2, c3, c4, c5, c6, c7 = c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]
+    c8, c9, c10, c11, c12, c13, c14, c15 = (c[8], c[9], c[10], c[11], c[12], c[13], c[14],
+                                            c[15])
+    for b in nb.prange((n + _EXTRAPOLATE_BLOCK - 1) // _EXTRAPOLATE_BLOCK):
+        lo = b * _EXTRAPOLATE_BLOCK
+        hi = min(n, lo + _EXTRAPOLATE_BLOCK)
+        acc = np.empty(3 * (hi - lo))
+        norms = np.empty(hi - lo)
+        for a in range(3 * (hi - lo)):
+            x = 3 * lo + a
+            acc[a] = fb[x] + (c0 * f0[x] + c1 * f1[x] + c2 * f2[x] + c3 * f3[x]
+                              + c4 * f4[x] + c5 * f5[x] + c6 * f6[x] + c7 * f7[x]
+                              + c8 * f8[x] + c9 * f9[x] + c10 * f10[x] + c11 * f11[x]
+                              + c12 * f12[x] + c13 * f13[x] + c14 * f14[x] + c15 * f15[x])
+        for a in range(hi - lo):
+            x = acc[3 * a]
+            y = acc[3 * a + 1]
+            z = acc[3 * a + 2]
+            norms[a] = np.sqrt(x * x + y * y + z * z)
+        for a in range(hi - lo):
+            norm = norms[a]
+            i = lo + a
+            if norm > 0.0:
+                out[i, 0] = acc[3 * a] / norm
+                out[i, 1] = acc[3 * a + 1] / norm
+                out[i, 2] = acc[3 * a + 2] / norm
+            else:
+                out[i, 0] = acc[3 * a]
+                out[i, 1] = acc[3 * a + 1]
+                out[i, 2] = acc[3 * a + 2]
 
 
 @nb.njit(cache=True, inline="always")
@@ -1111,13 +1214,15 @@ def difference_table(nrows):
 
 
 @nb.njit(cache=True)
-def _best_order(n, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, W, rows, w_rows, kept,
-                kept_n):
-    """The order 0 … n−1 with the smallest max error over ``rows`` of the
-    increments h (W at its rows ``w_rows``: the same sample), all orders
-    from one backward-difference table (Newton's form: order k predicts
-    Σ_{j≤k} ∇^j h_0, the polynomial of :func:`extrapolate`'s coefficients),
-    the sampled values side by side (loops that vectorise).
+def _best_order(n, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, h12, h13, h14, h15, W,
+                rows, w_rows, kept, kept_n):
+    """The row of :data:`_COEFFICIENTS` (order) with the smallest max error
+    over ``rows`` of the increments h (W at its rows ``w_rows``: the same
+    sample): the exact orders 0 … min(n, 12) − 1 from one backward-difference
+    table (Newton's form: order k predicts Σ_{j≤k} ∇^j h_0, the polynomial of
+    :func:`extrapolate`'s coefficients), and with a full history (n = 16) the
+    least-squares row (15), Σ_m c_m h_m evaluated at the sample; the sampled
+    values side by side (loops that vectorise). On a tie the lower row.
 
     ``kept`` holds ∇^k h_0, k < ``kept_n[0]``, of the last call for this
     history. When the history has gained one increment since (h_1 now is
@@ -1172,6 +1277,10 @@ def _best_order(n, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, W, rows, w_
                 D[9, 3 * a + c] = h9[r, c]
                 D[10, 3 * a + c] = h10[r, c]
                 D[11, 3 * a + c] = h11[r, c]
+                D[12, 3 * a + c] = h12[r, c]
+                D[13, 3 * a + c] = h13[r, c]
+                D[14, 3 * a + c] = h14[r, c]
+                D[15, 3 * a + c] = h15[r, c]
         kept[0] = D[0]
         for k in range(1, n):
             for j in range(n - k):  # now D[0] = ∇^k h_0
@@ -1182,7 +1291,7 @@ def _best_order(n, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, W, rows, w_
     prediction = kept[0].copy()
     best = np.inf
     order = 0
-    for k in range(n):
+    for k in range(min(n, EXACT_ORDERS)):
         if k > 0:
             for x in range(m):
                 prediction[x] += kept[k, x]
@@ -1192,6 +1301,17 @@ def _best_order(n, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, W, rows, w_
         if err < best:
             best = err
             order = k
+    if n == PREDICTOR_DEPTH:
+        c = _LEAST_SQUARES
+        err = 0.0
+        for a in range(len(rows)):
+            r = rows[a]
+            for j in range(3):
+                p = _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11,
+                                       h12, h13, h14, h15, r, j)
+                err = max(err, abs(p - w[3 * a + j]))
+        if err < best:
+            order = PREDICTOR_DEPTH - 1
     return order
 
 
