@@ -687,3 +687,16 @@ def test_two_colourable_lattice_of_threaded_size_takes_colour_order():
     assert np.array_equal(runs[1, True][0], runs[2, True][0])
     assert runs[1, True][1] == runs[2, True][1] < 0.8 * runs[2, False][1]
     assert np.abs(runs[2, True][0] - runs[2, False][0]).max() < 1e-12
+
+
+def test_predictor_depth_by_stages_and_size():
+    """The second-order step keeps 16 increments (the least-squares row) from
+    LEAST_SQUARES_FROM atoms, 12 below; compositions fewer; 4 from LARGE_SYSTEM."""
+    from ase_spin.md import collective, kernels
+
+    small, large = collective.LEAST_SQUARES_FROM, collective.LARGE_SYSTEM
+    assert collective.predictor_depth(1, small - 1) == kernels.EXACT_ORDERS == 12
+    assert collective.predictor_depth(1, small) == kernels.PREDICTOR_DEPTH == 16
+    assert collective.predictor_depth(1, large - 1) == 16
+    assert collective.predictor_depth(5, 500) == 6 and collective.predictor_depth(9, 500) == 4
+    assert collective.predictor_depth(1, large) == 4

@@ -71,25 +71,34 @@ def first_tolerance(tol, settle):
     return min(1e-6, max(tol, FIRST_SOLVE_FRACTION * settle))
 
 
+#: From this many atoms on, the second-order step's predictor keeps 16
+#: increments and may take the least-squares row (kernels.PREDICTOR_DEPTH);
+#: below, 12: there the predictor's bookkeeping, not the sweeps, is what a
+#: step costs (the paper's 30-atom chain 10.7 against 12.3 µs a step with it).
+LEAST_SQUARES_FROM = 64
 #: From this many atoms on, the predictor keeps 4 increments per stage: memory
 #: per atom, not speed, is then the limit (a 10⁶-atom run within 2 KiB per atom).
 LARGE_SYSTEM = 500_000
 
 
-def predictor_depth(stages, natoms=0):
+def predictor_depth(stages, natoms=None):
     """Increments kept per stage for the predictor: all
     :data:`~ase_spin.md.kernels.PREDICTOR_DEPTH` (16: extrapolation up to order
-    14, and a least-squares fit through all 16) for the one-stage second-order
+    11, and a least-squares fit through all 16) for the one-stage second-order
     step (384 bytes per atom; each order is ~10× more accurate than the one
     below at 0.1 fs until round-off takes over, and the solve takes about one
     sweep less per factor 30), fewer for the compositions (5 stages: 6 each,
     9 stages: 4 each): at most 36 arrays of (N, 3) for all stages, 864 bytes per
-    atom, what order 6 kept before (4 per stage). From :data:`LARGE_SYSTEM`
-    atoms, 4 per stage (96 bytes per atom and stage; ~6 more sweeps per step
-    at 0.1 fs)."""
-    if natoms >= LARGE_SYSTEM:
+    atom, what order 6 kept before (4 per stage). Below
+    :data:`LEAST_SQUARES_FROM` atoms 12 (no least-squares row). From
+    :data:`LARGE_SYSTEM` atoms, 4 per stage (96 bytes per atom and stage; ~6
+    more sweeps per step at 0.1 fs)."""
+    if natoms is not None and natoms >= LARGE_SYSTEM:
         return 4
-    return min(kernels.PREDICTOR_DEPTH, max(4, 32 // stages))
+    deepest = kernels.PREDICTOR_DEPTH
+    if natoms is not None and natoms < LEAST_SQUARES_FROM:
+        deepest = kernels.EXACT_ORDERS
+    return min(deepest, max(4, 32 // stages))
 
 
 class CollectivePRK(SpinLatticeDynamics):

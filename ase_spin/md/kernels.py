@@ -1101,11 +1101,13 @@ def _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, h12,
             + c[15] * h15[i, k])
 
 
-#: Below this many atoms :func:`_extrapolate` takes its blocks of flat loops
-#: (the arrays in cache: the arithmetic is the cost, and it vectorises), from it
-#: one loop over rows (the arrays streamed from memory: measured faster there,
-#: 32 000 atoms: ~190 against ~310 µs on two threads).
-_EXTRAPOLATE_FLAT_BELOW = 1500
+#: From :data:`~ase_spin.threads.SERIAL_ALL_BELOW` to :data:`~ase_spin.threads.SERIAL_BELOW`
+#: atoms :func:`_extrapolate` takes its blocks of flat loops (the arrays in
+#: cache: the arithmetic is the cost, and it vectorises); outside, one loop over
+#: rows (fewer atoms: the blocks' scratch arrays cost more than they save, 30
+#: atoms 0.3 against 0.9 µs; more: the arrays streamed from memory, 32 000 atoms
+#: ~220 against ~310 µs on two threads).
+_EXTRAPOLATE_FLAT = (threads.SERIAL_ALL_BELOW, threads.SERIAL_BELOW)
 #: Atoms per block of the flat loops.
 _EXTRAPOLATE_BLOCK = 256
 
@@ -1114,14 +1116,14 @@ _EXTRAPOLATE_BLOCK = 256
 def _extrapolate(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, h12, h13, h14, h15,
                  base, out):
     """out = normalise(base + Σ_m c_m h_m) row by row (C-contiguous (n, 3)
-    arrays). A small system a block of atoms at a time: base + Σ over the
-    block's flat values in one straight loop over the 16 streams, then the
-    norms, then the rows divided by them — loops that vectorise, where one
-    loop per row did not (N = 500, 16 terms: 7.8 → 4.9 µs); a large one in
-    one loop over rows. Each value is computed as :func:`_extrapolated_deep`
+    arrays). A small system (:data:`_EXTRAPOLATE_FLAT`) a block of atoms at a
+    time: base + Σ over the block's flat values in one straight loop over the
+    16 streams, then the norms, then the rows divided by them — loops that
+    vectorise, where one loop per row did not (N = 500, 16 terms: 7.8 → 4.9
+    µs); others in one loop over rows. Each value is computed as :func:`_extrapolated_deep`
     computes it either way: the same bits."""
     n = h0.shape[0]
-    if n >= _EXTRAPOLATE_FLAT_BELOW:
+    if not _EXTRAPOLATE_FLAT[0] <= n < _EXTRAPOLATE_FLAT[1]:
         for i in nb.prange(n):
             x = base[i, 0] + _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10,
                                                 h11, h12, h13, h14, h15, i, 0)
