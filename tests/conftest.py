@@ -134,3 +134,25 @@ def interrupted_at(k, action):
         return False
     finally:
         sys.settrace(None)
+
+
+def pytest_collection_finish(session):
+    """Start test_compilation's scan of every kernel (a child process that
+    compiles them for small and large systems) as soon as the run knows it will
+    test it: on two cores its compilation overlaps the tests before it, and
+    the tests after it load what it compiled from numba's cache."""
+    if any(item.name == "test_each_kernel_is_compiled_for_one_set_of_argument_types"
+           for item in session.items):
+        import test_compilation
+
+        test_compilation.started.append(test_compilation.start_scan())
+
+
+def pytest_sessionfinish(session):
+    """A scan the run did not reach (stopped early, -x) is stopped with it."""
+    import sys
+
+    module = sys.modules.get("test_compilation")
+    for scan in getattr(module, "started", ()):
+        scan.kill()
+        scan.communicate()

@@ -700,3 +700,32 @@ def test_predictor_depth_by_stages_and_size():
     assert collective.predictor_depth(1, large - 1) == 16
     assert collective.predictor_depth(5, 500) == 6 and collective.predictor_depth(9, 500) == 4
     assert collective.predictor_depth(1, large) == 4
+
+
+@pytest.mark.parametrize("n", [30, 500, 2000])
+def test_extrapolation_is_the_ordered_sum_to_the_bit(n):
+    """kernels.extrapolate (the loop over rows below 64 and from 1 500 atoms,
+    flat blocks between) gives normalise(base + (c_0 h_0 + … + c_15 h_15)),
+    each sum taken in that order and rounded as numpy rounds it: bit for bit,
+    for the least-squares row and an exact order."""
+    from collections import deque
+
+    from ase_spin.md import kernels
+
+    rng = np.random.default_rng(n)
+    depth = kernels.PREDICTOR_DEPTH
+    history = deque([1e-2 * rng.normal(size=(n, 3)) for _ in range(depth)], maxlen=depth)
+    base = rng.normal(size=(n, 3))
+    base[0] = 0.0
+    history[-1][0] = 0.0  # a row of zero length stays zero
+    for order in (depth - 1, 7):
+        got = kernels.extrapolate(history, order, base)
+        newest = kernels._last(history, order)
+        c = kernels._COEFFICIENTS[order]
+        total = c[0] * newest[0]
+        for m in range(1, depth):
+            total = total + c[m] * newest[m]
+        v = base + total
+        norm = np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2])
+        expected = np.where(norm[:, None] > 0.0, v / np.where(norm > 0.0, norm, 1.0)[:, None], v)
+        assert np.array_equal(got, expected)

@@ -74,7 +74,8 @@ def first_tolerance(tol, settle):
 #: From this many atoms on, the second-order step's predictor keeps 16
 #: increments and may take the least-squares row (kernels.PREDICTOR_DEPTH);
 #: below, 12: there the predictor's bookkeeping, not the sweeps, is what a
-#: step costs (the paper's 30-atom chain 10.7 against 12.3 µs a step with it).
+#: step costs (the paper's 30-atom chain: docs/benchmarks.md, "The predictor's
+#: least-squares row").
 LEAST_SQUARES_FROM = 64
 #: From this many atoms on, the predictor keeps 4 increments per stage: memory
 #: per atom, not speed, is then the limit (a 10⁶-atom run within 2 KiB per atom).

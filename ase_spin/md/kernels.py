@@ -984,14 +984,13 @@ def kick_drift(nthreads, p, a, f, carry_p, P, carry_mid, q, m, h, carry_q, qt, c
 
 #: Midpoints the predictor keeps per stage at most: extrapolation orders 0 to
 #: 11 from the newest 1 … 12, and in the last row a least-squares polynomial of
-#: degree :data:`LEAST_SQUARES_DEGREE` through all 16. At 0.1 fs on fcc Co each
-#: order is ~10× more accurate than the one below (max error 8e-6 at order 3,
-#: 2e-10 at 7) until, from order ~10 (~2e-12 at 0.15 fs), the last digits of
-#: the increments (the midpoints are solved to ``tol``, ~1e-15) are amplified by
-#: Σ|c_m| = 2^(k+1) − 1 and take over; the least-squares row, of degree 12 but
-#: Σ|c_m| = 1125 instead of 8191, predicts 4–7× better there (the midpoint solve
-#: takes one sweep less per factor 1/θ ≈ 30–100, θ the contraction per sweep);
-#: see docs/benchmarks.md, "The predictor's least-squares row". Rows 12–14 are
+#: degree :data:`LEAST_SQUARES_DEGREE` through all 16. At small steps each order
+#: is about an order of magnitude more accurate than the one below until the
+#: last digits of the increments (the midpoints are solved to ``tol``) take
+#: over, amplified by Σ|c_m| = 2^(k+1) − 1; the least-squares row, of degree 12
+#: but Σ|c_m| = 1125 instead of 8191, predicts better there, and the midpoint
+#: solve takes one sweep less per factor 1/θ (θ the contraction per sweep); see
+#: docs/benchmarks.md, "The predictor's least-squares row". Rows 12–14 are
 #: order 11 again: what the last row falls back to while fewer than 16
 #: increments are kept (exact orders 12–14 would only amplify the noise more).
 PREDICTOR_DEPTH = 16
@@ -1104,9 +1103,9 @@ def _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, h12,
 #: From :data:`~ase_spin.threads.SERIAL_ALL_BELOW` to :data:`~ase_spin.threads.SERIAL_BELOW`
 #: atoms :func:`_extrapolate` takes its blocks of flat loops (the arrays in
 #: cache: the arithmetic is the cost, and it vectorises); outside, one loop over
-#: rows (fewer atoms: the blocks' scratch arrays cost more than they save, 30
-#: atoms 0.3 against 0.9 µs; more: the arrays streamed from memory, 32 000 atoms
-#: ~220 against ~310 µs on two threads).
+#: rows (fewer atoms: the blocks' scratch arrays cost more than they save; more:
+#: the arrays are streamed from memory, and the row loop measured faster there;
+#: docs/benchmarks.md, "The predictor's least-squares row").
 _EXTRAPOLATE_FLAT = (threads.SERIAL_ALL_BELOW, threads.SERIAL_BELOW)
 #: Atoms per block of the flat loops.
 _EXTRAPOLATE_BLOCK = 256
@@ -1119,9 +1118,9 @@ def _extrapolate(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, h12, h13, 
     arrays). A small system (:data:`_EXTRAPOLATE_FLAT`) a block of atoms at a
     time: base + Σ over the block's flat values in one straight loop over the
     16 streams, then the norms, then the rows divided by them — loops that
-    vectorise, where one loop per row did not (N = 500, 16 terms: 7.8 → 4.9
-    µs); others in one loop over rows. Each value is computed as :func:`_extrapolated_deep`
-    computes it either way: the same bits."""
+    vectorise, where one loop per row does not; others in one loop over rows.
+    Each value is computed as :func:`_extrapolated_deep` computes it either
+    way: the same bits."""
     n = h0.shape[0]
     if not _EXTRAPOLATE_FLAT[0] <= n < _EXTRAPOLATE_FLAT[1]:
         for i in nb.prange(n):
