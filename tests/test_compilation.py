@@ -25,6 +25,8 @@ for n in (3, 8):  # 108 atoms (serial kernels), 2048 (threaded)
         ase_spin.CollectivePRK(atoms, 0.1 * units.fs).run(3)
         ase_spin.CollectivePRK(atoms, 0.1 * units.fs, order=4).run(2)
         ase_spin.SuzukiTrotter(atoms, 0.1 * units.fs).run(2)
+        ase_spin.Langevin(atoms, 0.1 * units.fs, 100.0, spin_damping=0.01, friction=0.01,
+                          rng=0).run(2)
 signatures = {}
 for d in gc.get_objects():
     if isinstance(d, CPUDispatcher) and d.py_func.__module__.startswith("ase_spin"):
@@ -53,7 +55,7 @@ started = []
 
 def test_each_kernel_is_compiled_for_one_set_of_argument_types():
     """Small and large systems, with and without single-site terms, through the
-    calculator and three integrators: every kernel but ``same`` is specialised
+    calculator and four integrators: every kernel but ``same`` is specialised
     once (arguments normalised where they enter: contiguous arrays, float and
     int64 scalars), so a scene compiles each kernel once."""
     scan = started.pop() if started else start_scan()

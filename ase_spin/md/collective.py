@@ -584,19 +584,19 @@ class CollectivePRK(SpinLatticeDynamics):
             coloured = None
             if local and st.sweep_order[stage] == kernels.COLOUR_ORDER:  # (frozen)
                 coloured = self._colour_pairs(operators, mean)
+            # the midpoint fields where asked for, else an empty array (not
+            # None: one compiled specialisation for both kinds of caller)
+            field = kernels.NO_FIELD
+            if st.field_out is not None:
+                field = st.field_out
+                st.field_filled = True
             if coloured is not None:
                 row, nbr, c, order, starts = coloured
-                if st.field_out is not None:
-                    st.field_filled = True
                 return kernels.midpoint_solve(threads.count(), row, nbr, c, *args, memory, local,
-                                              st.field_out, order, starts)
+                                              field, order, starts)
             pairs, c = operators[0].linear_pairs(mean)
             solve = kernels.midpoint_solve_half if pairs.half else kernels.midpoint_solve
-            if st.field_out is None:
-                return solve(threads.count(), pairs.row, pairs.j, c, *args, memory, local)
-            st.field_filled = True
-            return solve(threads.count(), pairs.row, pairs.j, c, *args, memory, local,
-                         st.field_out)
+            return solve(threads.count(), pairs.row, pairs.j, c, *args, memory, local, field)
         return kernels.midpoint_solve_operators(operators, *args, mean, memory, local)
 
     def _raise_not_converged(self, operators, W, its, delta, scale, mean):

@@ -335,6 +335,7 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
     stage to be coloured without a full list given (empty ``order``), stops
     the block before its step. Returns (steps done, s, carry of s, the spare W
     buffer, sweeps in all, sweeps of the last step)."""
+    no_field = np.zeros((0, 3))  # kernels.NO_FIELD: no midpoint fields wanted
     nstages = gammas.shape[0]
     depth = ring.shape[1]
     increments = np.empty((nstages,) + s.shape)
@@ -369,12 +370,12 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
                 its, delta, status, which, measured, moved = solve_full(  # noqa: F821
                     1, full_row, full_nbr, full_c, s, W, Wnext, stilde, scales[stage], tol,
                     floor, max_iter[stage], min(1.0, 2.0 * theta[stage]), carry_s, carry,
-                    memory[stage], use_local, None, order, starts)
+                    memory[stage], use_local, no_field, order, starts)
             else:
                 its, delta, status, which, measured, moved = solve(  # noqa: F821
                     1, row, nbr, c, s, W, Wnext, stilde, scales[stage], tol, floor,
                     max_iter[stage], min(1.0, 2.0 * theta[stage]), carry_s, carry,
-                    memory[stage], use_local)
+                    memory[stage], use_local, no_field)
             if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch[stage]):
                 failed = True
                 break

@@ -309,7 +309,7 @@ def _coloured_spins(lo, hi, row, nbr, Jbar, s, cur, nxt, scale, stilde, carry, c
         if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
             continue
         bx, by, bz = _pair_field(a, row, nbr, Jbar, nxt)
-        if field is not None:
+        if field is not None and field.shape[0] > 0:
             field[i, 0] = bx
             field[i, 1] = by
             field[i, 2] = bz
@@ -484,6 +484,12 @@ def anderson_mix(it, x, g, fprev, gprev, dF, dG, gram):
 anderson_mix_serial = serial_twin(anderson_mix)
 
 
+#: ``field`` of the midpoint solvers when no midpoint fields are wanted: an
+#: empty array rather than None, so that callers that want them (the fused
+#: step, Langevin) and callers that do not share one compiled specialisation.
+NO_FIELD = np.zeros((0, 3))
+
+
 @threaded(anderson_mix=lambda: anderson_mix_serial)
 def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
                    theta0, carry, carry_out, memory=MEMORY, local=True, field=None,
@@ -540,8 +546,9 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     last max|ΔW|, status, index of the buffer holding the result: 0 = W,
     1 = Wnext, contraction θ observed, or −1 if none was, max|ΔW| of the
     first sweep: how far the starting guess was from the result). ``field``,
-    if given, receives the midpoint fields B̄_i of the last sweep's input
-    iterate (magnetic rows; the others are not written).
+    if given and not empty (:data:`NO_FIELD`), receives the midpoint fields B̄_i
+    of the last sweep's input iterate (magnetic rows; the others are not
+    written).
     """
     n = len(row) - 1
     bounds = balanced_chunks(row, nthreads)
@@ -601,7 +608,7 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
                     if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
                         continue
                     bx, by, bz = _pair_field(i, row, nbr, Jbar, cur)
-                    if field is not None:
+                    if field is not None and field.shape[0] > 0:
                         field[i, 0] = bx
                         field[i, 1] = by
                         field[i, 2] = bz
@@ -701,7 +708,7 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
                     buf[u, i, 2] = 0.0
                 if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
                     continue
-                if field is not None:
+                if field is not None and field.shape[0] > 0:
                     field[i, 0] = bx
                     field[i, 1] = by
                     field[i, 2] = bz
