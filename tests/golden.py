@@ -1,0 +1,136 @@
+"""The golden record: sha256 of the raw bytes of q, p and s after a fixed
+number of steps of each reference scene, with the thread count fixed.
+
+The record (tests/data/golden.json) was taken on main before the package was
+reorganised; a refactoring that changes no number leaves every hash as it is.
+Numba compiles for the host CPU, whose vector width may change the last bits
+of a vectorised sum, so the hashes are kept per CPU (llvmlite's host name and
+features); on a CPU not in the record the test checks a rounded fingerprint
+(10 significant digits of sums of the arrays) instead.
+
+``python tests/golden.py --record`` adds this CPU's hashes to the record.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+from ase import units
+from ase.build import bulk
+
+import ase_spin
+from ase_spin import scenes
+
+RECORD = Path(__file__).with_name("data") / "golden.json"
+THREADS = 2
+
+
+def _all_spin_terms():
+    """Every spin term together on a small rattled fcc Co crystal (with LJ)."""
+    atoms = bulk("Co", "fcc", a=3.54, cubic=True).repeat(3)
+    atoms.rattle(0.02, seed=3)
+    atoms.set_masses(np.full(len(atoms), 58.93))
+    rng = np.random.default_rng(5)
+    ase_spin.set_spins(atoms, scenes.cone(len(atoms), rng, 40.0), magnitudes=1.72)
+    atoms.set_momenta(rng.normal(size=(len(atoms), 3)) * 0.05)
+    atoms.calc = ase_spin.SpinLatticeCalculator([
+        ase_spin.LennardJones(epsilon=0.4, sigma=2.2742, rc=4.7, cutoff="shift"),
+        ase_spin.Exchange(ase_spin.BetheSlater(J1=0.0446928, J2=0.003496, J3=1.4885), rc=4.0),
+        ase_spin.Zeeman(5.0, [0.1, 0.2, 1.0]),
+        ase_spin.UniaxialAnisotropy(0.01, [1.0, 0.0, 0.0]),
+        ase_spin.CubicAnisotropy(0.002, 0.001),
+        ase_spin.DMI(0.003, [0.0, 0.0, 1.0], rc=2.6),
+        ase_spin.BiquadraticExchange(ase_spin.BetheSlater(0.01, 0.001, 1.5),
+                                     ase_spin.BetheSlater(0.002, 0.0005, 1.5), rc=2.6),
+        ase_spin.ShellExchange([(2.503, 0.02), (3.54, 0.004)], tol=0.2),
+    ])
+    return atoms
+
+
+def _chain(dyn_kwargs, steps=200):
+    return lambda: (scenes.paper_chain(30),
+                    dict(timestep=0.01, hbar=1.0, precession="spin", **dyn_kwargs), steps)
+
+
+def _co(n, steps, dt_fs=0.1, **kw):
+    return lambda: (scenes.fcc_cobalt(n), dict(timestep=dt_fs * units.fs, **kw), steps)
+
+
+#: name -> (make: () -> (atoms, integrator keywords, steps), integrator)
+SCENES = {
+    "paper_chain": (_chain({}), "CollectivePRK"),
+    "paper_chain_order4": (_chain(dict(order=4), 100), "CollectivePRK"),
+    "fcc_co_108": (_co(3, 100), "CollectivePRK"),
+    "fcc_co_500_order4": (_co(5, 20, 0.5, order=4), "CollectivePRK"),
+    "fcc_co_500_order6": (_co(5, 10, 0.5, order=6), "CollectivePRK"),
+    "fcc_co_500_frozen": (_co(5, 50, 0.5, lattice="frozen"), "CollectivePRK"),
+    "fcc_co_2048": (_co(8, 10), "CollectivePRK"),
+    "fcc_co_2048_frozen_order4": (_co(8, 5, 0.5, lattice="frozen", order=4), "CollectivePRK"),
+    "all_spin_terms": (lambda: (_all_spin_terms(), dict(timestep=0.2 * units.fs), 40),
+                       "CollectivePRK"),
+    "all_spin_terms_order4": (lambda: (_all_spin_terms(), dict(timestep=0.3 * units.fs,
+                                                               order=4), 10), "CollectivePRK"),
+    "fcc_co_108_fused": (_co(3, 100), "CollectivePRK"),
+    "paper_chain_fused": (_chain({}), "CollectivePRK"),
+    "suzuki_trotter_108": (_co(3, 50), "SuzukiTrotter"),
+    "suzuki_trotter_500_order4": (_co(5, 10, 0.5, order=4), "SuzukiTrotter"),
+    "langevin_108": (lambda: (scenes.fcc_cobalt(3),
+                              dict(timestep=0.2 * units.fs, temperature_K=300.0,
+                                   spin_damping=0.05, friction=0.01 / units.fs,
+                                   rng=np.random.default_rng(42)), 50), "Langevin"),
+}
+
+
+def fused_now(setattr=setattr):
+    """Make the compiled small-system step (md/fused.py) take every step of
+    the run, whatever its length (the ``*_fused`` scenes); ``setattr``: the
+    tests pass monkeypatch.setattr, to put it back."""
+    from ase_spin.md import fused
+
+    setattr(fused, "FUSE_AFTER_STEPS", 0)
+
+
+def run(name):
+    """(sha256 of the bytes of q, p, s; a rounded fingerprint) of one scene."""
+    make, integrator = SCENES[name]
+    atoms, kwargs, steps = make()
+    dyn = getattr(ase_spin, integrator)(atoms, threads=THREADS, **kwargs)
+    dyn.run(steps)
+    q = np.ascontiguousarray(atoms.get_positions())
+    p = np.ascontiguousarray(atoms.get_momenta())
+    s = np.ascontiguousarray(ase_spin.get_spins(atoms))
+    digest = hashlib.sha256(q.tobytes() + p.tobytes() + s.tobytes()).hexdigest()
+    weights = np.linspace(1.0, 2.0, len(atoms))[:, None] * np.array([1.0, np.pi, np.e])
+    fingerprint = [float(f"{(weights * a).sum():.10e}") for a in (q, p, s)]
+    return digest, fingerprint
+
+
+def cpu():
+    """The host CPU as numba compiles for it."""
+    import llvmlite.binding as llvm
+
+    return f"{llvm.get_host_cpu_name()} {llvm.get_host_cpu_features().flatten()}"
+
+
+def load():
+    return json.loads(RECORD.read_text()) if RECORD.exists() else {"hashes": {}, "fingerprints": {}}
+
+
+if __name__ == "__main__":
+    record = load()
+    names = [a for a in sys.argv[1:] if not a.startswith("-")] or list(SCENES)
+    hashes = record["hashes"].setdefault(cpu(), {})
+    for name in names:
+        if name.endswith("_fused"):
+            fused_now()
+        digest, fingerprint = run(name)
+        print(f"{name:28s} {digest[:16]}  {fingerprint}")
+        if "--record" in sys.argv:
+            hashes[name] = digest
+            record["fingerprints"][name] = fingerprint
+    if "--record" in sys.argv:
+        RECORD.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
