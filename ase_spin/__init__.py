@@ -1,21 +1,21 @@
 """ase_spin: coupled spin–lattice dynamics for the Atomic Simulation Environment."""
 
-from . import compilation as _compilation  # noqa: F401 - announces first-use compilation
+from ._jit import cache as _compilation  # noqa: F401 - announces first-use compilation
 from .calculator import SpinLatticeCalculator
-from .hamiltonian import AtomsTooCloseError, Evaluator, Hamiltonian, Want
 from .constants import HBAR_LAMMPS, MU_B, MU_B_LAMMPS
-from .io import complete_frames, recover_trajectory
-from .lammps import read_lammps_spin_dump, write_lammps
-from .md import (HBAR, CollectivePRK, IntegrationError, SpinConvergenceError,
-                 SpinLatticeDynamics, SpinMDLogger, SuzukiTrotter, UnstableStepError,
-                 Langevin, relax_spins)
+from .hamiltonian import AtomsTooCloseError, Evaluator, Hamiltonian
+from .interop.lammps import read_lammps_spin_dump, write_lammps
+from .interop.symmetry import magnetic_symmetry, neighbor_shells
+from .interop.tb2j import read_tb2j
+from .io.trajectories import complete_frames, recover_trajectory
+from .io.viewing import plot_spins, spin_colors, write_ovito_xyz
+from .md import (HBAR, CollectivePRK, IntegrationError, Langevin, SpinConvergenceError,
+                 SpinLatticeDynamics, SpinMDLogger, SuzukiTrotter, UnstableStepError, relax_spins)
 from .spins import get_moments, get_spins, set_spins
-from .viewing import plot_spins, spin_colors, write_ovito_xyz
-from .terms import (BetheSlater, BiquadraticExchange, CalculatorTerm, Coupling, Cubic, Exchange, LennardJones, Term,
-                    CubicAnisotropy, DMI, EAM, UniaxialAnisotropy, Zeeman)
-from .terms import ShellExchange, Tabulated
-from .symmetry import magnetic_symmetry, neighbor_shells
-from .tb2j import read_tb2j
+from .terms import (DMI, EAM, BetheSlater, BiquadraticExchange, CalculatorTerm, Coupling, Cubic,
+                    CubicAnisotropy, Exchange, LennardJones, ShellExchange, Tabulated, Term,
+                    UniaxialAnisotropy, Zeeman)
+from .terms.base import Want
 
 __version__ = "0.1.0"
 

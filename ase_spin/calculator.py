@@ -5,12 +5,12 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-from ase.calculators.calculator import (Calculator, PropertyNotImplementedError, all_changes,
-                                         equal)
+from ase.calculators.calculator import Calculator, PropertyNotImplementedError, all_changes, equal
 
-from .hamiltonian import AtomsTooCloseError, Hamiltonian, Want
+from .hamiltonian import AtomsTooCloseError, Hamiltonian
 from .serialize import decode_term, encode_term
 from .spins import get_moments, split_moments
+from .terms.base import Want
 
 __all__ = ["SpinLatticeCalculator", "NoMomentsWarning"]
 

@@ -19,10 +19,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ._jit.threads import threads_for
 from .neighbors import NeighborCache, all_finite
-from .threads import threads_for
 from .terms.ase_calculator import CalculatorTerm, is_ase_calculator
-from .terms.base import Species, System, Term, parameter_generation
+from .terms.base import Species, System, Term, Want, parameter_generation
 from .validate import real_scalar, robust_norm
 
 __all__ = ["Hamiltonian", "Evaluator", "Want", "Evaluation", "AtomsTooCloseError"]
@@ -30,17 +30,6 @@ __all__ = ["Hamiltonian", "Evaluator", "Want", "Evaluation", "AtomsTooCloseError
 
 class AtomsTooCloseError(ValueError):
     """Atoms overlap or are so close that forces are not finite."""
-
-
-@dataclass(frozen=True)
-class Want:
-    """What an evaluation should produce; nothing else is computed."""
-
-    energy: bool = False
-    energies: bool = False
-    forces: bool = False
-    magnetic_forces: bool = False
-    virial: bool = False
 
 
 @dataclass
@@ -136,7 +125,7 @@ def _symbols(numbers):
 
 def _sized(method):
     """Run the kernels of an Evaluator method threaded, or serially for a small
-    system (see ase_spin.threads)."""
+    system (see ase_spin._jit.threads)."""
 
     @functools.wraps(method)
     def run(self, *args, **kwargs):

@@ -14,6 +14,9 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from .terms.ase_calculator import is_ase_calculator
+from .terms.base import Parameterised
+
 __all__ = ["encode_term", "decode_term"]
 
 
@@ -24,9 +27,6 @@ def _class_path(obj):
 
 def encode_term(value):
     """A term, coupling, ASE calculator or parameter value as JSON-ready data."""
-    from .terms.ase_calculator import is_ase_calculator
-    from .terms.base import Parameterised
-
     if isinstance(value, Parameterised):
         return {"__class__": _class_path(value),
                 "args": {arg: encode_term(getattr(value, attr))
@@ -67,8 +67,6 @@ def decode_term(data):
     """Inverse of :func:`encode_term`. Only ase_spin terms and couplings and
     ASE calculators are built (a class named in the data must be one)."""
     from ase.calculators.calculator import BaseCalculator
-
-    from .terms.base import Parameterised
 
     if isinstance(data, list):
         return [decode_term(v) for v in data]

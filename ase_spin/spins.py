@@ -17,7 +17,7 @@ from .validate import real_array
 __all__ = ["set_spins", "get_spins", "get_moments", "split_moments", "MOMENT_RANGE"]
 
 
-def _name_atoms(indices, limit=10):
+def name_atoms(indices, limit=10):
     indices = [int(i) for i in np.atleast_1d(indices)]
     shown = ", ".join(str(i) for i in indices[:limit])
     more = f" and {len(indices) - limit} more" if len(indices) > limit else ""
@@ -42,7 +42,7 @@ def _check_magnitudes(mu, what):
     bad = np.flatnonzero((mu != 0.0) & ~((mu >= lo) & (mu <= hi)))
     if bad.size:
         raise ValueError(
-            f"{what} of {_name_atoms(bad)} ({mu[bad[0]]:.3g} μB) outside the supported "
+            f"{what} of {name_atoms(bad)} ({mu[bad[0]]:.3g} μB) outside the supported "
             f"range: non-zero moments must lie between {lo:g} and {hi:g} μB"
         )
 
@@ -81,7 +81,7 @@ def set_spins(atoms, directions, magnitudes=None):
         )
     bad = np.flatnonzero(~np.isfinite(d).all(axis=1))
     if bad.size:
-        raise ValueError(f"spin directions are not finite for {_name_atoms(bad)}")
+        raise ValueError(f"spin directions are not finite for {name_atoms(bad)}")
     unit, norms = split_moments(d)
     zero = norms == 0.0
 
@@ -100,12 +100,12 @@ def set_spins(atoms, directions, magnitudes=None):
         bad = np.flatnonzero(~np.isfinite(mu) | (mu < 0.0))
         if bad.size:
             raise ValueError(
-                f"spin magnitudes must be finite and >= 0; not so for {_name_atoms(bad)}"
+                f"spin magnitudes must be finite and >= 0; not so for {name_atoms(bad)}"
             )
         bad = np.flatnonzero(zero & (mu > 0.0))
         if bad.size:
             raise ValueError(
-                f"zero spin direction with a non-zero magnitude for {_name_atoms(bad)}"
+                f"zero spin direction with a non-zero magnitude for {name_atoms(bad)}"
             )
     _check_magnitudes(mu, "spin magnitudes")
     # ASE refuses to change an array's shape in place (collinear -> vector).
@@ -129,14 +129,14 @@ def get_moments(atoms):
         if nonzero.size == 0:
             return np.zeros((n, 3))
         raise ValueError(
-            f"{_name_atoms(nonzero)} carry collinear (N,) magnetic moments; spin "
+            f"{name_atoms(nonzero)} carry collinear (N,) magnetic moments; spin "
             "dynamics needs (N, 3) vectors: use ase_spin.set_spins(atoms, directions)"
         )
     if m.shape != (n, 3):
         raise ValueError(f"initial_magmoms must have shape ({n}, 3), got {m.shape}")
     if not np.isfinite(m).all():
         bad = np.flatnonzero(~np.isfinite(m).all(axis=1))
-        raise ValueError(f"magnetic moments are not finite for {_name_atoms(bad)}")
+        raise ValueError(f"magnetic moments are not finite for {name_atoms(bad)}")
     _check_magnitudes(split_moments(m)[1], "magnetic moments")
     return m
 

@@ -51,10 +51,12 @@ import numpy as np
 from ase.build import bulk
 
 sys.path.insert(0, str(Path(__file__).parent))
+# the drivers of LAMMPS and Spirit (lammps_peer, spirit_peer) live with the tests
+sys.path.insert(0, str(Path(__file__).parent.parent / "tests"))
 from machine import describe  # noqa: E402
 
 from ase_spin import EAM, Hamiltonian, Want  # noqa: E402
-from ase_spin.lammps_peer import LammpsLattice  # noqa: E402
+from lammps_peer import LammpsLattice  # noqa: E402
 from ase_spin.terms.eam import lammps_potential_path  # noqa: E402
 
 
@@ -87,7 +89,7 @@ def step_benchmark(args, nthreads, path):
 
     import ase_spin
     from ase_spin import BetheSlater, CollectivePRK, Exchange
-    from ase_spin.lammps_peer import LammpsSpin
+    from lammps_peer import LammpsSpin
 
     bs = (0.02726, 0.2171, 1.841)
     print(f"# bcc Fe, {path.split('/')[-1]} + spin/exchange {bs} rc 3.4 Å, 0.1 fs; "

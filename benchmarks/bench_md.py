@@ -22,7 +22,8 @@ from ase import units
 sys.path.insert(0, os.path.dirname(__file__))
 
 import ase_spin  # noqa: E402
-from ase_spin import CollectivePRK, Want, threads  # noqa: E402
+from ase_spin import CollectivePRK, Want
+from ase_spin._jit import threads  # noqa: E402
 from ase_spin.scenes import fcc_cobalt  # noqa: E402
 from machine import describe  # noqa: E402
 

@@ -24,11 +24,13 @@ import numpy as np
 from ase import units
 
 sys.path.insert(0, os.path.dirname(__file__))
+# the drivers of LAMMPS and Spirit (lammps_peer, spirit_peer) live with the tests
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), os.pardir, "tests"))
 
 from ase_spin import HBAR_LAMMPS, CollectivePRK  # noqa: E402
-from ase_spin.lammps_peer import LammpsSpin, lammps_available  # noqa: E402
+from lammps_peer import LammpsSpin, lammps_available  # noqa: E402
 from ase_spin.scenes import fcc_cobalt  # noqa: E402
-from ase_spin.threads import chunks  # noqa: E402
+from ase_spin._jit.threads import chunks  # noqa: E402
 from machine import describe  # noqa: E402
 
 

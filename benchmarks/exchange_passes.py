@@ -24,7 +24,8 @@ import time
 def measure(sizes):
     import numpy as np
 
-    from ase_spin import Want, get_spins, threads
+    from ase_spin import Want, get_spins
+    from ase_spin._jit import threads
     from ase_spin.scenes import fcc_cobalt
 
     out = {}

@@ -20,10 +20,12 @@ import numpy as np
 from ase import units
 
 sys.path.insert(0, os.path.dirname(__file__))
+# the drivers of LAMMPS and Spirit (lammps_peer, spirit_peer) live with the tests
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), os.pardir, "tests"))
 
 import ase_spin  # noqa: E402
 from ase_spin import CollectivePRK  # noqa: E402
-from ase_spin.lammps_peer import LammpsSpin, lammps_available  # noqa: E402
+from lammps_peer import LammpsSpin, lammps_available  # noqa: E402
 from ase_spin.md.ode import reference_solution  # noqa: E402
 from ase_spin.scenes import fcc_cobalt  # noqa: E402
 

@@ -25,6 +25,8 @@ import numpy as np
 from ase import units
 
 sys.path.insert(0, os.path.dirname(__file__))
+# the drivers of LAMMPS and Spirit (lammps_peer, spirit_peer) live with the tests
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), os.pardir, "tests"))
 
 from ase_spin import HBAR_LAMMPS, CollectivePRK, SuzukiTrotter  # noqa: E402
 from ase_spin.scenes import (FIELD_ANISOTROPY_LAMMPS, fcc_cobalt,  # noqa: E402
@@ -89,7 +91,7 @@ def main(argv=None):
 def lammps_run(args):
     """LAMMPS fix nve/spin on the same scene: its total energy (pe + ke, the
     precession fix's energy included) every sample."""
-    from ase_spin.lammps_peer import LammpsSpin
+    from lammps_peer import LammpsSpin
 
     if args.scene == "chain":
         raise SystemExit("the chain scene has no LAMMPS counterpart here")

@@ -6,7 +6,7 @@ CollectivePRK order 2 on the fcc Co work–precision scene (N = 500, 0.5 ps).
 
 1. The increments W − s of 400 steps at 0.15 fs are recorded (the general
    path: CollectivePRK._remember_midpoint), and each row of the predictor's
-   coefficient table (kernels._COEFFICIENTS: exact orders, and this tree's
+   coefficient table (kernels.COEFFICIENTS: exact orders, and this tree's
    least-squares row if it has one) predicts every increment from the 16
    before it: median and largest max-norm error over the steps.
 2. Wall time of the whole 0.5 ps run (``dyn.run``, the compiled blocks; the
@@ -61,9 +61,9 @@ def record_increments(dt_fs, steps):
 def row_errors(X):
     """Per row of the coefficient table: (median, max) over steps of the
     max-norm error predicting X[n + 1] from X[n], X[n − 1], …"""
-    depth = kernels._COEFFICIENTS.shape[1]
+    depth = kernels.COEFFICIENTS.shape[1]
     out = []
-    for k, c in enumerate(kernels._COEFFICIENTS):
+    for k, c in enumerate(kernels.COEFFICIENTS):
         errors = [np.abs(np.tensordot(c, X[n - np.arange(depth)], axes=1) - X[n + 1]).max()
                   for n in range(40, len(X) - 1)]
         out.append((k, float(np.median(errors)), float(np.max(errors)), float(np.abs(c).sum())))
@@ -97,7 +97,7 @@ def main(argv=None):
         print("# row  median_err  max_err  sum|c|")
         seen = set()
         for k, med, big, gain in row_errors(X):
-            key = tuple(kernels._COEFFICIENTS[k])
+            key = tuple(kernels.COEFFICIENTS[k])
             if key in seen:  # a row repeating another (a stand-in)
                 continue
             seen.add(key)

@@ -5,7 +5,7 @@ one scene in both codes, one process.
     PYTHONPATH=. python benchmarks/spirit_heisenberg.py [--sizes 8 32] [--threads 1 2]
         [--repeats 3] [--budget 30] [--long-steps 100000 2000] [--tol T] [--quick]
 
-The scene (ase_spin.spirit_peer.SpiritHeisenberg): simple cubic, a = 2.5 Å, periodic,
+The scene (spirit_peer.SpiritHeisenberg): simple cubic, a = 2.5 Å, periodic,
 n³ spins, nearest-neighbour exchange J = 10 meV, E = −Σ_<ij> J s_i·s_j with each
 pair once, moments μ = 2 μB, frozen lattice, no field, anisotropy, damping or
 temperature. Initial spins uniform in a 30° cone about z (seeded): every wave vector
@@ -34,7 +34,7 @@ finishes (progress).
 
 Threads: the Spirit wheel on PyPI is built without OpenMP and without C++
 threads (printed below): it runs on one thread. ase_spin runs with ``threads=1``
-(equal footing) and ``threads=2``; systems under ``ase_spin.threads.SERIAL_BELOW``
+(equal footing) and ``threads=2``; systems under ``ase_spin._jit.threads.SERIAL_BELOW``
 atoms run serial whatever is asked, so there only threads=1 is measured.
 SuzukiTrotter (order 2 and 4, LAMMPS's Cayley rotation) sweeps the spins one
 after the other: one thread.
@@ -62,18 +62,20 @@ import warnings
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(__file__))
+# the drivers of LAMMPS and Spirit (lammps_peer, spirit_peer) live with the tests
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), os.pardir, "tests"))
 
 from ase_spin import CollectivePRK, SuzukiTrotter  # noqa: E402
-from ase_spin.hamiltonian import Want  # noqa: E402
+from ase_spin.terms.base import Want  # noqa: E402
 from ase_spin.md import fused  # noqa: E402
 from ase_spin.md.base import TimestepWarning  # noqa: E402
 from ase_spin.md.compositions import composition_coefficients  # noqa: E402
 from ase_spin.md.ode import reference_solution  # noqa: E402
 from ase_spin.scenes import cone  # noqa: E402
 from ase_spin.spins import get_spins  # noqa: E402
-from ase_spin.spirit_peer import (SOLVERS, SpiritHeisenberg, load_spirit,  # noqa: E402
-                                  run_collective, run_splitting, spirit_available)
-from ase_spin.threads import SERIAL_BELOW  # noqa: E402
+from spirit_peer import (SOLVERS, SpiritHeisenberg, load_spirit, run_collective, run_splitting,
+    spirit_available)
+from ase_spin._jit.threads import SERIAL_BELOW  # noqa: E402
 from machine import describe  # noqa: E402
 
 # the compiled blocks of small-system steps whatever a run's length (a short

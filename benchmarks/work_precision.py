@@ -27,10 +27,12 @@ import numpy as np
 from ase import units
 
 sys.path.insert(0, os.path.dirname(__file__))
+# the drivers of LAMMPS and Spirit (lammps_peer, spirit_peer) live with the tests
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), os.pardir, "tests"))
 
 import ase_spin  # noqa: E402
 from ase_spin import CollectivePRK, SuzukiTrotter  # noqa: E402
-from ase_spin.lammps_peer import LammpsSpin, lammps_available  # noqa: E402
+from lammps_peer import LammpsSpin, lammps_available  # noqa: E402
 from ase_spin.md.ode import reference_solution  # noqa: E402
 from ase_spin.scenes import (FIELD_ANISOTROPY_LAMMPS, fcc_cobalt,  # noqa: E402
                              field_anisotropy_terms, paper_chain)

@@ -54,7 +54,7 @@ try:
 except ImportError:
     print("OVITO not installed (pip install ovito): no OVITO picture")
 else:
-    from ase_spin.viewing import ovito_pipeline
+    from ase_spin.io.viewing import ovito_pipeline
 
     pipeline = ovito_pipeline(xyz)
     pipeline.add_to_scene()

@@ -64,7 +64,7 @@ def _threads_as_they_were():
     statement cannot prevent, and would carry a serial mode into later tests."""
     import numba as nb
 
-    from ase_spin import threads
+    from ase_spin._jit import threads
 
     mode = (threads._mode.serial, threads._mode.tiny)
     count = nb.get_num_threads()

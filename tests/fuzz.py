@@ -699,7 +699,7 @@ def family_files(stride=1):
                       keywords=("append_trajectory",), prepare=written))
 
     def truncated(a):
-        from ase_spin.io import recover_trajectory
+        from ase_spin.io.trajectories import recover_trajectory
 
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "md.traj"

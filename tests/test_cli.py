@@ -13,8 +13,8 @@ from ase import units
 from ase.io import read
 
 import ase_spin
-from ase_spin import cli
-from ase_spin.cli import main
+from ase_spin.app import cli
+from ase_spin.app.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -323,18 +323,21 @@ def test_plot_errors(tmp_path, capsys, monkeypatch):
 
 
 def test_console_script_is_declared_and_the_module_runs(tmp_path):
-    tomllib = cli._toml()
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python < 3.11
+        import tomli as tomllib
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     module, function = project["scripts"]["ase-spin"].split(":")
     assert getattr(__import__(module, fromlist=[function]), function) is main
     assert any(d.startswith("tqdm") for d in project["dependencies"])
     path = write_input(tmp_path, steps=2, interval=1)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    done = subprocess.run([sys.executable, "-m", "ase_spin.cli", "run", str(path)],
+    done = subprocess.run([sys.executable, "-m", "ase_spin.app.cli", "run", str(path)],
                           capture_output=True, text=True, env=env, timeout=600)
     assert done.returncode == 0, done.stderr
     assert "2/2" in done.stderr and "done: 2 steps" in done.stdout
-    bad = subprocess.run([sys.executable, "-m", "ase_spin.cli", "run", str(path)],
+    bad = subprocess.run([sys.executable, "-m", "ase_spin.app.cli", "run", str(path)],
                          capture_output=True, text=True, env=env, timeout=600)
     assert bad.returncode == 2 and "exist" in bad.stderr
 
@@ -437,12 +440,12 @@ def test_compile_command_fills_an_empty_cache_for_later_runs(tmp_path):
     path = write_input(tmp_path, steps=2, interval=1)
     env = {**os.environ, "PYTHONPATH": str(ROOT), "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
     env.pop("ASE_SPIN_QUIET_COMPILE", None)
-    first = subprocess.run([sys.executable, "-m", "ase_spin.cli", "compile", str(path), str(path),
+    first = subprocess.run([sys.executable, "-m", "ase_spin.app.cli", "compile", str(path), str(path),
                             "--jobs", "2"], capture_output=True, text=True, env=env,
                            timeout=1200)
     assert first.returncode == 0, first.stderr
     assert "kernel(s) compiled" in first.stdout and "compiling numba" not in first.stderr
-    run = subprocess.run([sys.executable, "-m", "ase_spin.cli", "run", str(path), "--steps", "2",
+    run = subprocess.run([sys.executable, "-m", "ase_spin.app.cli", "run", str(path), "--steps", "2",
                           "--no-progress"], capture_output=True, text=True, env=env,
                          timeout=1200)
     assert run.returncode == 0, run.stderr

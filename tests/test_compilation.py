@@ -71,17 +71,17 @@ def test_compile_with_names_a_skeleton_after_the_package_source(monkeypatch):
     """A skeleton compiled with bound functions is cached under a name carrying
     a hash of the whole package's source: an edit of any helper it runs (in
     any module) gives a new cache entry instead of the stale machine code."""
-    from ase_spin import compilation
+    from ase_spin._jit import cache as compilation
+    from ase_spin._jit.cloning import compile_with
     from ase_spin.md import fused, kernels
-    from ase_spin.terms import base
 
     def name():
-        fn = base.compile_with(fused._run_frozen, {"solve": kernels.midpoint_solve.serial,
-                                                   "extrapolate": kernels._extrapolate.serial,
-                                                   "best_order": kernels._best_order}, "x")
+        fn = compile_with(fused._run_frozen, {"solve": kernels.midpoint_solve.serial,
+                                                   "extrapolate": kernels.extrapolate_rows.serial,
+                                                   "best_order": kernels.best_order_rows}, "x")
         return fn.py_func.__qualname__
 
-    assert base._source_digest() and name() == name()
+    assert compilation.source_digest() and name() == name()
     first = name()
     monkeypatch.setattr(compilation, "_digest", b"another source")
     assert name() != first
@@ -91,7 +91,7 @@ def test_stale_cached_kernels_are_removed_once_per_source(tmp_path):
     """A cache folder stamped with another source digest (or none) loses this
     package's cached kernels — those of its own folder's modules only — and is
     stamped; with the current stamp nothing is removed."""
-    from ase_spin import compilation
+    from ase_spin._jit import cache as compilation
 
     package = tmp_path / "pkg"
     cache = tmp_path / "cache"
@@ -114,10 +114,10 @@ def test_stale_cached_kernels_are_removed_once_per_source(tmp_path):
 
 def test_every_cache_folder_of_the_package_carries_the_current_stamp():
     """Importing ase_spin has stamped each folder numba caches its kernels in."""
-    from ase_spin import compilation
+    from ase_spin._jit import cache as compilation
 
     folders = compilation.cache_folders()
-    assert len(folders) >= 3  # ase_spin, ase_spin/md, ase_spin/terms
+    assert len(folders) >= 3  # ase_spin, ase_spin/md, ase_spin/terms, ...
     for cache in folders:
         with open(os.path.join(cache, compilation.STAMP)) as f:
             assert f.read().strip() == compilation.source_digest().hex()

@@ -12,7 +12,7 @@ from ase.build import bulk
 import ase_spin
 from ase_spin import EAM, BetheSlater, CollectivePRK, Exchange, LennardJones
 from ase_spin.terms.eam_files import EAMFileError, lammps_potential_path
-from ase_spin.lammps_peer import lammps_available
+from lammps_peer import lammps_available
 from ase_spin.scenes import cone
 
 from conftest import CO_LJ
@@ -90,7 +90,7 @@ CASES = {
 @pytest.mark.parametrize("case", CASES)
 def test_agrees_with_lammps_at_round_off(case):
     """Energy, per-atom energies, forces and stress against LAMMPS ``run 0``."""
-    from ase_spin.lammps_peer import LammpsLattice
+    from lammps_peer import LammpsLattice
 
     atoms, args, pair = CASES[case]()
     names = args[0] if isinstance(args[0], list) else [args[0]]
@@ -334,7 +334,7 @@ def test_suzuki_trotter_with_eam_follows_lammps_step_for_step():
     precession/spin) step for step, moving and frozen lattice (masses scaled to
     LAMMPS's metal-unit constant as in tests/test_lammps.py)."""
     from ase_spin import SuzukiTrotter, UniaxialAnisotropy, Zeeman
-    from ase_spin.lammps_peer import LammpsSpin
+    from lammps_peer import LammpsSpin
 
     path = potential("Fe_mm.eam.fs")
     bs = (0.02726, 0.2171, 1.841)
@@ -443,7 +443,7 @@ def test_collective_prk_with_eam_converges_to_the_ode_solution_and_to_lammps():
         so = ase_spin.get_spins(atoms)
         row = [max(np.abs(so - sr).max(), np.abs(atoms.positions - xr).max())]
         if with_lammps:
-            from ase_spin.lammps_peer import LammpsSpin
+            from lammps_peer import LammpsSpin
 
             lmp = LammpsSpin(_iron_spin_scene(), (0.0, 1.0, 3.4, False), (*_IRON_BS, 3.4, False),
                              timestep_fs=dt,

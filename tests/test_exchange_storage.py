@@ -21,16 +21,16 @@ import numpy as np
 import pytest
 from ase import units
 
-from ase_spin import (CollectivePRK, Langevin, SpinLatticeCalculator, Want, get_spins, set_spins,
-                      threads)
+from ase_spin import CollectivePRK, Langevin, SpinLatticeCalculator, Want, get_spins, set_spins
+from ase_spin._jit import threads
 from ase_spin.md import fused
-from ase_spin.neighbors import (balanced_chunks, reduce_threads, reduce_threads_serial,
-                                sum_over_threads)
+from ase_spin._jit.reductions import (balanced_chunks, reduce_threads, reduce_threads_serial,
+    sum_over_threads)
 from ase_spin.scenes import cone, fcc_cobalt, fcc_cobalt_terms
 from ase_spin.terms import BetheSlater, BiquadraticExchange, Cubic, Exchange
 from ase_spin.terms import exchange as exchange_module
 from ase_spin.terms.base import SpinOperator, SpinTerm
-from ase_spin.threads import threaded
+from ase_spin._jit.threads import threaded
 
 #: exchange.PAIR_VECTORS_BELOW for the package's operators in each form
 FORMS = {"G": 10**12, "g": 0}

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from ase_spin import threads
+from ase_spin._jit import threads
 from ase_spin.md.gaussian import fill_normal, new_key
 
 N = 2_000_000

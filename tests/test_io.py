@@ -10,7 +10,7 @@ from ase.io import Trajectory, read
 
 import ase_spin
 from ase_spin import CollectivePRK, SuzukiTrotter
-from ase_spin.io import complete_frames, recover_trajectory
+from ase_spin.io.trajectories import complete_frames, recover_trajectory
 
 from conftest import CO_BS, CO_LJ
 

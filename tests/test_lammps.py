@@ -9,7 +9,7 @@ import pytest
 from ase.build import bulk
 
 import ase_spin
-from ase_spin.lammps_peer import LammpsSpin, lammps_available
+from lammps_peer import LammpsSpin, lammps_available
 
 from conftest import CO_BS, CO_LJ, cone_spins
 

@@ -1,4 +1,4 @@
-"""ase_spin.lammps: scenes written as LAMMPS runs, run by LAMMPS (serially and
+"""ase_spin.interop.lammps: scenes written as LAMMPS runs, run by LAMMPS (serially and
 under ``mpiexec -n 2``), read back and compared with SuzukiTrotter step for
 step; refusals; round trips. The runs are skipped without lammps."""
 
@@ -15,8 +15,8 @@ from ase import units
 from ase.build import bulk
 
 import ase_spin
-from ase_spin.lammps import (LammpsIntegratorWarning, read_lammps_spin_dump, write_lammps)
-from ase_spin.lammps_peer import lammps_available, load_lammps
+from ase_spin.interop.lammps import LammpsIntegratorWarning, read_lammps_spin_dump, write_lammps
+from lammps_peer import LAMMPS_HBAR, lammps_available, load_lammps
 from ase_spin.scenes import cone
 
 needs_lammps = pytest.mark.skipif(not lammps_available(), reason="lammps not importable")
@@ -158,10 +158,11 @@ def test_mpi_run_follows_suzuki_trotter_in_the_sector_order(tmp_path):
     atoms = _scene()
     dyn = ase_spin.SuzukiTrotter(atoms, 0.1 * units.fs, hbar=ase_spin.HBAR_LAMMPS)
     files = write_lammps(tmp_path, atoms, dyn, steps=40, dump_interval=10)
-    script = ("from ase_spin.lammps_peer import load_lammps\n"
+    script = ("from lammps_peer import load_lammps\n"
               "lmp = load_lammps().lammps(cmdargs=['-log', 'log.lammps', '-screen', 'none', "
               "'-nocite'])\nlmp.file('in.spin')\nlmp.close()\n")
-    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""),
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([ROOT, os.path.dirname(__file__),
+                                                      os.environ.get("PYTHONPATH", "")]),
                OMP_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
     done = subprocess.run([_mpiexec(), "-n", "2", sys.executable, "-c", script], cwd=tmp_path,
                           env=env, capture_output=True, text=True, timeout=300)
@@ -310,7 +311,7 @@ def test_reader_names_types_from_symbols_or_data_and_refuses_without(tmp_path):
     assert np.allclose(a.get_initial_magnetic_moments(), [[1.5, 0, 0], [0, 0, 2.0]])
     assert np.allclose(a.get_forces(), [[0, 0.2, 0], [0.1, 0, 0]])
     assert np.allclose(a.calc.results["magnetic_forces"][0],
-                       [0, ase_spin.lammps_peer.LAMMPS_HBAR, 0])
+                       [0, LAMMPS_HBAR, 0])
     assert a.info["timestep"] == 5
 
 

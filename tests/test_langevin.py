@@ -835,7 +835,7 @@ def test_predictor_kernel_equals_the_spin_by_spin_formula(twin):
 def test_linear_field_and_form_on_half_and_full_lists(half):
     """kernels.linear_field_and_form: out += C u, d·C d and x·C d in one pass,
     equal to the exchange operator's own field (C u, C d) on either pair list."""
-    from ase_spin import threads
+    from ase_spin._jit import threads
     from ase_spin.md import kernels
     atoms = fcc_cobalt(2)
     ev, _ = atoms.calc.bound_evaluator(atoms)

@@ -11,7 +11,7 @@ from ase_spin import CollectivePRK, SpinLatticeCalculator
 from ase_spin.md import SpinConvergenceError
 from ase_spin.md.kernels import local_midpoint
 from ase_spin.scenes import fcc_cobalt, fcc_cobalt_terms, field_anisotropy_terms
-from ase_spin.threads import chunks
+from ase_spin._jit.threads import chunks
 
 pytestmark = pytest.mark.filterwarnings("ignore::ase_spin.md.base.TimestepWarning")
 
@@ -183,11 +183,11 @@ def test_predictor_least_squares_row_fits_degree_12_through_all_16():
     from ase_spin.md import kernels
 
     depth = kernels.PREDICTOR_DEPTH
-    c = kernels._COEFFICIENTS[depth - 1]
+    c = kernels.COEFFICIENTS[depth - 1]
     assert depth == 16 and kernels.LEAST_SQUARES_DEGREE == 12
     # rows 12–14 (a full-history choice while the history refills): order 11
     for k in (12, 13, 14):
-        assert np.array_equal(kernels._COEFFICIENTS[k], kernels._COEFFICIENTS[11])
+        assert np.array_equal(kernels.COEFFICIENTS[k], kernels.COEFFICIENTS[11])
     t = -np.arange(depth) / depth  # newest first; the next value at t = 1/depth
     rng = np.random.default_rng(4)
     for degree in range(13):
@@ -204,7 +204,7 @@ def test_predictor_least_squares_row_fits_degree_12_through_all_16():
     assert np.abs(c).sum() < 8191 / 7
     # with noise on each value it errs less than exact order 12
     noise = 1e-12 * rng.normal(size=(2000, depth))
-    assert np.abs(noise @ c).max() < 0.25 * np.abs(noise @ kernels._COEFFICIENTS[12]).max()
+    assert np.abs(noise @ c).max() < 0.25 * np.abs(noise @ kernels.COEFFICIENTS[12]).max()
 
 
 def test_predictor_order_choice_is_the_order_with_the_smallest_error():
@@ -230,7 +230,7 @@ def test_predictor_order_choice_is_the_order_with_the_smallest_error():
                 newest_first = [history[-1 - m] if m < n else history[-1] for m in range(depth)]
                 candidates = (list(range(min(n, kernels.EXACT_ORDERS)))
                               + ([depth - 1] if n == depth else []))
-                errors = [max(abs(sum(c * h[r] for c, h in zip(kernels._COEFFICIENTS[k],
+                errors = [max(abs(sum(c * h[r] for c, h in zip(kernels.COEFFICIENTS[k],
                                                                newest_first)) - target[r]).max()
                               for r in rows) for k in candidates]
                 got = kernels.best_extrapolation_order(history, target, rows)
@@ -653,7 +653,7 @@ def _simple_cubic_atoms(n, threads=None):
     from ase import Atoms
 
     from ase_spin.scenes import cone
-    from ase_spin.spirit_peer import ConstantCoupling
+    from spirit_peer import ConstantCoupling
     from ase_spin.terms import Exchange
 
     a = 2.5
@@ -671,7 +671,7 @@ def test_two_colourable_lattice_of_threaded_size_takes_colour_order():
     with index order alone, to the same trajectory; one thread and two give
     the same bits."""
     from ase_spin.md import kernels
-    from ase_spin.threads import SERIAL_BELOW
+    from ase_spin._jit.threads import SERIAL_BELOW
 
     assert 12 ** 3 >= SERIAL_BELOW
     runs = {}
@@ -720,8 +720,8 @@ def test_extrapolation_is_the_ordered_sum_to_the_bit(n):
     history[-1][0] = 0.0  # a row of zero length stays zero
     for order in (depth - 1, 7):
         got = kernels.extrapolate(history, order, base)
-        newest = kernels._last(history, order)
-        c = kernels._COEFFICIENTS[order]
+        newest = kernels.newest_first(history, order)
+        c = kernels.COEFFICIENTS[order]
         total = c[0] * newest[0]
         for m in range(1, depth):
             total = total + c[m] * newest[m]

@@ -7,8 +7,8 @@ import pytest
 from ase import units
 from ase.constraints import FixAtoms
 
-from ase_spin import (CollectivePRK, SpinLatticeCalculator, SuzukiTrotter, Want, get_spins,
-                      threads)
+from ase_spin import CollectivePRK, SpinLatticeCalculator, SuzukiTrotter, Want, get_spins
+from ase_spin._jit import threads
 from ase_spin.md import fused, kernels
 from ase_spin.md.collective import SpinConvergenceError
 from ase_spin.neighbors import max_displacement

@@ -1,5 +1,5 @@
 """Side by side with Spirit (spirit-code) on a pure-spin Heisenberg ferromagnet: the
-conventions of ase_spin.spirit_peer (energy, precession sign and rate, ħ, γ, each
+conventions of spirit_peer (energy, precession sign and rate, ħ, γ, each
 pair once) are those of Spirit's own core. Skipped when ``spirit`` is not installed
 (the test extra installs it on Linux x86-64)."""
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ase_spin.md.ode import reference_solution
-from ase_spin.spirit_peer import SpiritHeisenberg, run_collective, spirit_available
+from spirit_peer import SpiritHeisenberg, run_collective, spirit_available
 from conftest import cone_spins
 
 pytestmark = pytest.mark.skipif(not spirit_available(), reason="spirit is not installed")

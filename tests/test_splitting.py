@@ -88,7 +88,8 @@ def test_site_sweeps_are_cached_on_disk_per_combination_of_terms():
     process); the order of the terms makes another kernel."""
     from pathlib import Path
 
-    from ase_spin import UniaxialAnisotropy, Zeeman, compilation
+    from ase_spin import UniaxialAnisotropy, Zeeman
+    from ase_spin._jit import cache as compilation
     from ase_spin.md import splitting
 
     pad = (splitting._no_site,) * (splitting.MAX_SITE_TERMS - 2)

@@ -13,7 +13,7 @@ from ase.neighborlist import primitive_neighbor_list
 
 from ase_spin import (Exchange, SpinLatticeCalculator, ShellExchange, Tabulated,
                       magnetic_symmetry, neighbor_shells, read_tb2j, set_spins)
-from ase_spin.symmetry import NeighborShells
+from ase_spin.interop.symmetry import NeighborShells
 
 from conftest import random_spins
 

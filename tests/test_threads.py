@@ -8,8 +8,8 @@ from ase import units
 from ase_spin import CollectivePRK, SpinLatticeCalculator, SuzukiTrotter, get_spins
 from ase_spin.scenes import fcc_cobalt, fcc_cobalt_terms, field_anisotropy_terms
 from ase_spin.terms import DMI
-from ase_spin import threads
-from ase_spin.threads import AdaptiveThreads, chunks
+from ase_spin._jit import threads
+from ase_spin._jit.threads import AdaptiveThreads, chunks
 
 needs_threads = pytest.mark.skipif(chunks() < 2, reason="numba has one thread here")
 

@@ -8,8 +8,8 @@ from ase.calculators.singlepoint import SinglePointCalculator
 from ase.io import Trajectory, read
 
 import ase_spin
-from ase_spin import viewing
-from ase_spin.viewing import spin_colors, write_ovito_xyz
+from ase_spin.io import viewing
+from ase_spin.io.viewing import spin_colors, write_ovito_xyz
 
 
 def scene(n=2, seed=0):

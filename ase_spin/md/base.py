@@ -21,14 +21,15 @@ from ase import units
 from ase.constraints import FixAtoms
 from ase.md.md import MolecularDynamics
 
-from .. import threads
+from .._jit import threads
+from .._jit.threads import AdaptiveThreads
 from ..calculator import SpinLatticeCalculator
 from ..constants import HBAR
-from ..hamiltonian import Want
-from ..io import check_trajectory_target
+from ..io.progress import run_with_progress
+from ..io.trajectories import check_trajectory_target
 from ..neighbors import max_displacement
-from ..spins import _name_atoms, split_moments
-from ..threads import AdaptiveThreads
+from ..spins import name_atoms, split_moments
+from ..terms.base import Want
 from ..validate import flag, positive_scalar, real_array, real_scalar
 from . import kernels
 from .compositions import composition_coefficients
@@ -143,7 +144,7 @@ class SpinLatticeDynamics(MolecularDynamics):
     default), ``order``/``composition`` (symmetric compositions of the step),
     ``lattice`` ("moving" or "frozen"), ``threads`` ("auto": all configured
     threads or one, whichever runs the steps faster right now, see
-    :class:`~ase_spin.threads.AdaptiveThreads`; or a fixed count; default from
+    :class:`~ase_spin._jit.threads.AdaptiveThreads`; or a fixed count; default from
     the environment variable ``ASE_SPIN_THREADS``), and ASE's ``trajectory``,
     ``logfile``, ``loginterval``, ``append_trajectory``.
     """
@@ -452,9 +453,8 @@ class SpinLatticeDynamics(MolecularDynamics):
 
     def run(self, steps=50, progress=False):
         """ASE's ``run``; ``progress=True`` (or a dict of tqdm options) shows a
-        progress bar with steps/s and the time left (:mod:`ase_spin.progress`)."""
+        progress bar with steps/s and the time left (:mod:`ase_spin.io.progress`)."""
         if progress:
-            from ..progress import run_with_progress
             return run_with_progress(self, steps, progress)
         converged = False
         for converged in self._irun(steps, blocks=True):
@@ -563,7 +563,7 @@ class SpinLatticeDynamics(MolecularDynamics):
     def _raise_nonfinite(self, which, row):
         name = ("positions", "momenta", "spins")[which]
         raise IntegrationError(
-            f"the step gave non-finite {name} ({_name_atoms([row])}) at step "
+            f"the step gave non-finite {name} ({name_atoms([row])}) at step "
             f"{self.nsteps}: the forces or fields are not finite or the timestep "
             f"({self.dt / units.fs:.4g} fs) is far too large. The atoms keep the "
             f"state before this step.")
@@ -960,7 +960,7 @@ def _checked_masses(atoms):
     masses = real_array(atoms.get_masses(), "masses")
     bad = np.flatnonzero(~(np.isfinite(masses) & (masses > 0.0)))
     if bad.size:
-        raise ValueError(f"masses must be finite and positive; {_name_atoms(bad)} "
+        raise ValueError(f"masses must be finite and positive; {name_atoms(bad)} "
                          f"{'has' if bad.size == 1 else 'have'} mass {float(masses[bad[0]])}")
     return masses
 
@@ -971,5 +971,5 @@ def _checked_momenta(atoms):
     p = real_array(atoms.arrays["momenta"], "momenta", shape=(len(atoms), 3)).copy()
     bad = np.flatnonzero(~np.isfinite(p).all(axis=1))
     if bad.size:
-        raise ValueError(f"momenta are not finite for {_name_atoms(bad)}")
+        raise ValueError(f"momenta are not finite for {name_atoms(bad)}")
     return p

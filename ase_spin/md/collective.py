@@ -12,13 +12,12 @@ from collections import deque
 import numpy as np
 from ase import units
 
-from .. import threads
+from .._jit import threads
 from ..constants import HBAR
 from ..neighbors import rows_in_order
 from ..validate import integer, real_scalar
 from . import fused, kernels
-from .base import (IntegrationError, SpinConvergenceError, SpinLatticeDynamics,
-                   UnstableStepError)
+from .base import IntegrationError, SpinConvergenceError, SpinLatticeDynamics, UnstableStepError
 
 __all__ = ["CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError",
            "HBAR", "TOL_RANGE"]
@@ -238,10 +237,10 @@ class CollectivePRK(SpinLatticeDynamics):
         st.field_filled = False
         st.field_buffer = None  # see _midpoint_field_buffer
         magnetic_rows = np.flatnonzero(self.ev.magnetic)
-        # contiguous whatever the stride: one compiled specialisation of _best_order
+        # contiguous whatever the stride: one compiled specialisation of best_order_rows
         st.probe = np.ascontiguousarray(magnetic_rows[:: max(1, len(magnetic_rows) // 64)])
         # per stage, the predictor's difference table at the probe rows, kept
-        # between its order choices (kernels._best_order)
+        # between its order choices (kernels.best_order_rows)
         st.kept = np.zeros((len(self.gammas), kernels.PREDICTOR_DEPTH, 3 * len(st.probe)))
         st.kept_n = np.zeros(len(self.gammas), dtype=np.int64)
         # per stage, whether its last solve in auto's first mode took one sweep

@@ -4,7 +4,7 @@ compiled pieces.
 A step of the paper's 30-atom chain is a dozen kernel calls that each take a
 microsecond or two of work and several of Python around them; at fcc Co with
 500 atoms Python still took a fifth of the step. Below
-:data:`~ase_spin.threads.SERIAL_BELOW` atoms the whole second-order step
+:data:`~ase_spin._jit.threads.SERIAL_BELOW` atoms the whole second-order step
 (kicks, drifts, geometry, midpoint solves, the checks between them) is one
 numba function, compiled once per combination of pieces from what the terms
 expose (:meth:`~ase_spin.terms.base.Term.compiled_lattice`,
@@ -12,7 +12,7 @@ expose (:meth:`~ase_spin.terms.base.Term.compiled_lattice`,
 term's internals, and a term without the pieces simply keeps the general path.
 
 The pieces are the twins of the same kernels the general path calls at that
-size (all serial below :data:`~ase_spin.threads.SERIAL_ALL_BELOW` atoms; above,
+size (all serial below :data:`~ase_spin._jit.threads.SERIAL_ALL_BELOW` atoms; above,
 the pair-potential and geometry kernels threaded, called from compiled code),
 with the same arguments and chunks in the same order, so the results are the
 same bit for bit. Whatever the general path would stop at (an atom moving too
@@ -28,9 +28,9 @@ import os
 import numba as nb
 import numpy as np
 
-from .. import threads
+from .._jit import threads
+from .._jit.cloning import compile_with
 from ..neighbors import all_finite, largest_displacements
-from ..terms.base import compile_with
 from . import kernels
 
 __all__ = ["collective_block", "collective_step", "step_function"]
@@ -71,7 +71,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     ``hs``, newest first, padded), and the returned order is the one that would
     have predicted the increment W − s best (CollectivePRK._remember_midpoint's,
     from ``n_history`` increments and the rows ``probe``, its difference table
-    ``kept``, ``kept_n`` kept and updated: kernels._best_order), else −1; ``settle``:
+    ``kept``, ``kept_n`` kept and updated: kernels.best_order_rows), else −1; ``settle``:
     how far the second solve moved W, or −1. ``field`` receives the last
     solve's midpoint fields (kernels.midpoint_solve_half's ``field``). With
     ``merge`` (the operator offers ``spin_forces_two``), the outer round
@@ -196,13 +196,13 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
 @nb.njit(cache=True, inline="always")
 def _newest(ring, stage, head, count, k):
     """The k-th newest increment of a stage's ring buffer (the newest where
-    fewer are kept: as kernels._last pads)."""
+    fewer are kept: as kernels.newest_first pads)."""
     return ring[stage, (head - k) % ring.shape[1] if k < count else head]
 
 
 @nb.njit(cache=True, inline="always")
 def _history(ring, stage, head, count):
-    """A stage's increments, newest first, as kernels._last gives them."""
+    """A stage's increments, newest first, as kernels.newest_first gives them."""
     return (_newest(ring, stage, head, count, 0), _newest(ring, stage, head, count, 1),
             _newest(ring, stage, head, count, 2), _newest(ring, stage, head, count, 3),
             _newest(ring, stage, head, count, 4), _newest(ring, stage, head, count, 5),
@@ -443,8 +443,8 @@ def step_function(lattice, spin, two=None):
                     "spin_forces_two": two[0], "add_kept": two[1],
                     "kick_drift": kernels.kick_drift.serial, "kick": kernels.kick.serial,
                     "solve_half": kernels.midpoint_solve_half.serial,
-                    "extrapolate": kernels._extrapolate.serial,
-                    "best_order": kernels._best_order},
+                    "extrapolate": kernels.extrapolate_rows.serial,
+                    "best_order": kernels.best_order_rows},
             f"{lattice.__name__}_{forces.__name__}")
     return fn
 
@@ -652,15 +652,15 @@ def collective_step(dyn, h, stage):
     history = st.history[stage]
     predict = bool(history) and _predicts(type(dyn))
     if predict:  # CollectivePRK._predict, inside the step
-        hs = kernels._last(history)
+        hs = kernels.newest_first(history)
         n_history = len(history)
-        coef = kernels._COEFFICIENTS[min(st.predictor_order[stage], n_history - 1)]
+        coef = kernels.COEFFICIENTS[min(st.predictor_order[stage], n_history - 1)]
         W = hs[0]  # not read
     else:
         W = dyn._predict(stage)
         hs = (W,) * kernels.PREDICTOR_DEPTH
         n_history = 0
-        coef = kernels._COEFFICIENTS[0]
+        coef = kernels.COEFFICIENTS[0]
     (status, qt, P, s_new, carry_q, carry_s, FL, W, Wnext, theta, iterations,
      geometries, order, settle, increment, one_sweep, settled_in) = step(st.q, st.p, st.s, st.FL, dyn.masses[:, 0], h,
                                        st.carry_q, st.carry_p, st.carry_s, st.carry_mid, W,
@@ -814,7 +814,7 @@ def collective_block(dyn, steps):
                             data_q,
                             data_t, *_validity(ev),
                             dyn._settled_tol(), dyn._settled_qtol(0.0),
-                            kernels._COEFFICIENTS, merge, rounds)
+                            kernels.COEFFICIENTS, merge, rounds)
     if done:
         st.q, st.p, st.s, st.FL = q, p, s, FL
         st.EL, st.EL_terms, st.VL = None, None, None
@@ -846,8 +846,8 @@ def _frozen_runner(half):
         solve = kernels.midpoint_solve_half if half else kernels.midpoint_solve
         fn = _frozen_runners[half] = compile_with(
             _run_frozen, {"solve": solve.serial, "solve_full": kernels.midpoint_solve.serial,
-                          "extrapolate": kernels._extrapolate.serial,
-                          "best_order": kernels._best_order},
+                          "extrapolate": kernels.extrapolate_rows.serial,
+                          "best_order": kernels.best_order_rows},
             "half" if half else "full")
     return fn
 
@@ -875,7 +875,7 @@ def _frozen_block(dyn, steps):
     done, s, carry_s, Wnext, sweeps, last_sweeps = run(
         steps, st.s, dyn.dt, gammas, scales, st.carry_s, st.Wnext, dyn.tol, 64.0 * dyn.tol,
         max_iter, theta, memory, local, switch, adaptive, st.one_sweep, orders, ring, counts,
-        heads, st.probe, st.kept, st.kept_n, pairs.row, pairs.j, c, kernels._COEFFICIENTS,
+        heads, st.probe, st.kept, st.kept_n, pairs.row, pairs.j, c, kernels.COEFFICIENTS,
         st.sweep_order, st.theta_index, full_row, full_nbr, full_c, order, starts)
     if done:
         st.s, st.carry_s, st.Wnext = s, carry_s, Wnext

@@ -27,7 +27,7 @@ import math
 import numba as nb
 import numpy as np
 
-from ..threads import threaded
+from .._jit.threads import threaded
 
 __all__ = ["normal", "normals", "fill_normal", "new_key"]
 

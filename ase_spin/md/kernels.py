@@ -5,9 +5,10 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..neighbors import balanced_chunks, reduce_threads, reduce_threads_serial
-from .. import threads
-from ..threads import serial_twin, threaded
+from .._jit import threads
+from .._jit.cloning import serial_twin
+from .._jit.reductions import balanced_chunks, reduce_threads, reduce_threads_serial
+from .._jit.threads import threaded
 
 # Exit status of :func:`midpoint_solve`.
 CONVERGED, ROUNDOFF, NOT_CONVERGED = 0, 1, 2
@@ -1047,15 +1048,15 @@ def _coefficients(depth):
     return np.array(rows)
 
 
-_COEFFICIENTS = _coefficients(PREDICTOR_DEPTH)
+COEFFICIENTS = _coefficients(PREDICTOR_DEPTH)
 #: The least-squares row: its prediction, judged beside the exact orders by
-#: _best_order (a compile-time constant there).
-_LEAST_SQUARES = np.ascontiguousarray(_COEFFICIENTS[PREDICTOR_DEPTH - 1])
+#: best_order_rows (a compile-time constant there).
+_LEAST_SQUARES = np.ascontiguousarray(COEFFICIENTS[PREDICTOR_DEPTH - 1])
 # The first four orders (Langevin's predictor of remainders): row k is order k.
-_EXTRAPOLATION = np.ascontiguousarray(_COEFFICIENTS[:4, :4])
+LOW_ORDER_COEFFICIENTS = np.ascontiguousarray(COEFFICIENTS[:4, :4])
 
 
-def _last(history, order=PREDICTOR_DEPTH):
+def newest_first(history, order=PREDICTOR_DEPTH):
     """The last :data:`PREDICTOR_DEPTH` entries, newest first, padded with
     the newest (coefficient 0 there): one tuple type, one compiled kernel.
     Beyond ``order`` + 1 the newest again (a zero coefficient times it adds
@@ -1073,7 +1074,7 @@ def extrapolate(history, order, base):
 
     D_0 the newest, ``base`` the spins at the start of the step."""
     out = np.empty_like(history[-1])
-    _extrapolate(_COEFFICIENTS[order], *_last(history, order), base, out)
+    extrapolate_rows(COEFFICIENTS[order], *newest_first(history, order), base, out)
     return out
 
 
@@ -1107,8 +1108,8 @@ def _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, h12,
             + c[15] * h15[i, k])
 
 
-#: From :data:`~ase_spin.threads.SERIAL_ALL_BELOW` to :data:`~ase_spin.threads.SERIAL_BELOW`
-#: atoms :func:`_extrapolate` takes its blocks of flat loops (the arrays in
+#: From :data:`~ase_spin._jit.threads.SERIAL_ALL_BELOW` to :data:`~ase_spin._jit.threads.SERIAL_BELOW`
+#: atoms :func:`extrapolate_rows` takes its blocks of flat loops (the arrays in
 #: cache: the arithmetic is the cost, and it vectorises); outside, one loop over
 #: rows (fewer atoms: the blocks' scratch arrays cost more than they save; more:
 #: the arrays are streamed from memory, and the row loop measured faster there;
@@ -1119,7 +1120,7 @@ _EXTRAPOLATE_BLOCK = 256
 
 
 @threaded()
-def _extrapolate(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, h12, h13, h14, h15,
+def extrapolate_rows(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, h12, h13, h14, h15,
                  base, out):
     """out = normalise(base + Σ_m c_m h_m) row by row (C-contiguous (n, 3)
     arrays). A small system (:data:`_EXTRAPOLATE_FLAT`) a block of atoms at a
@@ -1205,26 +1206,26 @@ def best_extrapolation_order(history, W, rows, base=None, kept=None):
     with a base) best from ``history``, judged on a sample of ``rows`` (only
     those rows are read: no array of the system's size is made). ``kept``:
     (table, count) of :func:`difference_table`, kept per history between
-    calls (see :func:`_best_order`), or None."""
+    calls (see :func:`best_order_rows`), or None."""
     D = W[rows] if base is None else W[rows] - base[rows]
     n = min(len(history), PREDICTOR_DEPTH)
     if kept is None:
         kept = difference_table(len(rows))
     # the increments read at the sampled rows inside the kernel (no copies);
-    # _last's padding repeats the newest
-    return _best_order(n, *_last(history), D, rows, np.arange(len(rows)), *kept)
+    # newest_first's padding repeats the newest
+    return best_order_rows(n, *newest_first(history), D, rows, np.arange(len(rows)), *kept)
 
 
 def difference_table(nrows):
-    """A kept backward-difference table for :func:`_best_order` over ``nrows``
+    """A kept backward-difference table for :func:`best_order_rows` over ``nrows``
     sampled rows, empty: (table, count)."""
     return np.zeros((PREDICTOR_DEPTH, 3 * nrows)), np.zeros(1, dtype=np.int64)
 
 
 @nb.njit(cache=True)
-def _best_order(n, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, h12, h13, h14, h15, W,
+def best_order_rows(n, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, h12, h13, h14, h15, W,
                 rows, w_rows, kept, kept_n):
-    """The row of :data:`_COEFFICIENTS` (order) with the smallest max error
+    """The row of :data:`COEFFICIENTS` (order) with the smallest max error
     over ``rows`` of the increments h (W at its rows ``w_rows``: the same
     sample): the exact orders 0 … min(n, 12) − 1 from one backward-difference
     table (Newton's form: order k predicts Σ_{j≤k} ∇^j h_0, the polynomial of

@@ -14,15 +14,15 @@ import numba as nb
 import numpy as np
 from ase import units
 
-from ..hamiltonian import Want
+from .._jit import threads
+from .._jit.threads import threaded
+from ..terms.base import Want
 from ..validate import flag, real_scalar
 from . import kernels
 from .collective import CollectivePRK
 from .gaussian import new_key, normals
 from .kernels import BLOCK, local_midpoint
 from .logger import SpinMDLogger
-from .. import threads
-from ..threads import threaded
 
 __all__ = ["Langevin", "relax_spins", "LangevinLogger"]
 
@@ -958,8 +958,8 @@ class Langevin(CollectivePRK):
             coef = _MEAN_SLOPE[order]
         else:
             order = min(st.increment_order, len(history) - 1)
-            coef = kernels._EXTRAPOLATION[order]
-        R = kernels._last(history, order)[:4]  # beyond the order: the newest again
+            coef = kernels.LOW_ORDER_COEFFICIENTS[order]
+        R = kernels.newest_first(history, order)[:4]  # beyond the order: the newest again
         # the mean slope uses R₀ and R_m only: the newest in the slots of zero
         # weight (its rows are in cache: two (n, 3) arrays fewer to read)
         R = tuple(r if w != 0.0 else R[0] for r, w in zip(R, coef))

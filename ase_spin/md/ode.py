@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from ..hamiltonian import Want
 from ..spins import split_moments
+from ..terms.base import Want
 
 __all__ = ["reference_solution"]
 

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numba as nb
 import numpy as np
-
 from ase import units
 
-from ..terms.base import compile_with, linear_pair_field
+from .._jit.cloning import compile_with
+from ..terms.base import linear_pair_field
 from . import kernels
 from .base import SpinLatticeDynamics, UnstableStepError
 

@@ -8,6 +8,7 @@ import numpy as np
 
 from ..validate import real_scalar, unit_vector
 from .base import SingleSiteTerm, per_atom, species_values
+from .lammps_form import LammpsFix, number_text, vector_text
 
 __all__ = ["UniaxialAnisotropy", "CubicAnisotropy"]
 
@@ -57,10 +58,9 @@ class UniaxialAnisotropy(SingleSiteTerm):
     def lammps(self, types):
         """``fix precession/spin anisotropy K x y z``, one per magnetic species
         when K differs between them."""
-        from ..lammps import LammpsFix, _f, _v
 
-        axis = _v(types.vector(self.axis))
-        return [LammpsFix("precession/spin", f"anisotropy {_f(K)} {axis}", group)
+        axis = vector_text(types.vector(self.axis))
+        return [LammpsFix("precession/spin", f"anisotropy {number_text(K)} {axis}", group)
                 for group, K in types.site_groups(self.K, "UniaxialAnisotropy K")]
 
     def bind(self, system):
@@ -148,9 +148,7 @@ class CubicAnisotropy(SingleSiteTerm):
         when K1 or K2 differ between them."""
         from collections.abc import Mapping
 
-        from ..lammps import LammpsFix, _f, _v
-
-        axes = " ".join(_v(types.vector(n)) for n in self.axes)
+        axes = " ".join(vector_text(types.vector(n)) for n in self.axes)
         if isinstance(self.K1, Mapping) or isinstance(self.K2, Mapping):
             both = {}
             for s, m in zip(types.symbols, types.magnetic):
@@ -160,7 +158,7 @@ class CubicAnisotropy(SingleSiteTerm):
             groups = types.site_groups(both, "CubicAnisotropy K1, K2")
         else:
             groups = types.site_groups((self.K1, self.K2), "CubicAnisotropy K1, K2")
-        return [LammpsFix("precession/spin", f"cubic {_f(K1)} {_f(K2)} {axes}", group)
+        return [LammpsFix("precession/spin", f"cubic {number_text(K1)} {number_text(K2)} {axes}", group)
                 for group, (K1, K2) in groups]
 
     def bind(self, system):

@@ -54,9 +54,8 @@ class CalculatorTerm(Term):
     _parameters = {"calculator": "calculator"}
 
     def __init__(self, calculator):
-        from ..calculator import SpinLatticeCalculator
-
-        if isinstance(calculator, SpinLatticeCalculator):
+        # a spin–lattice calculator (this package's, by the property it adds)
+        if "magnetic_forces" in getattr(calculator, "implemented_properties", ()):
             raise TypeError("a SpinLatticeCalculator cannot be a term of a Hamiltonian: "
                             "give its terms (calc.hamiltonian.terms) instead")
         if not is_ase_calculator(calculator):

@@ -3,18 +3,18 @@
 from __future__ import annotations
 
 import itertools
-import types
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
 
-from ..neighbors import balanced_chunks, reduce_threads, sum_over_threads
-from ..threads import prange_only
+from .._jit import threads
+from .._jit.cloning import compile_with
+from .._jit.reductions import balanced_chunks, reduce_threads, sum_over_threads
 from ..validate import real_scalar
 
-__all__ = ["Term", "SpinTerm", "SpinOperator", "PairSpinTerm", "PairOperator", "System",
+__all__ = ["Want", "Term", "SpinTerm", "SpinOperator", "PairSpinTerm", "PairOperator", "System",
            "Parameterised", "PairParameters",
            "Species", "pair_key", "resolve_pairs", "pair_values", "parameter_generation"]
 
@@ -105,20 +105,6 @@ class PairParameters(Mapping):
         return repr(self._data)
 
 
-def kernel_twin(fn, suffix, **constants):
-    """``fn`` (a kernel's Python function) with the module constants
-    ``constants`` replaced (e.g. a request's flags, which numba then compiles
-    as constants: the work not asked for drops out), under a name of its own
-    (numba's disk cache keeps the twins apart)."""
-    glob = dict(fn.__globals__, **constants)
-    twin = types.FunctionType(fn.__code__, glob, fn.__name__ + suffix, fn.__defaults__,
-                              fn.__closure__)
-    twin.__qualname__ = fn.__qualname__ + suffix
-    twin.__module__ = fn.__module__
-    twin.__doc__ = fn.__doc__
-    return twin
-
-
 def pair_values(value, what, check):
     """Check a per-pair parameter: one value or a mapping keyed by pairs of
     symbols. ``check(v, what)`` validates one value (and returns it normalised).
@@ -182,6 +168,17 @@ def resolve_pairs(value, symbols, what):
                 )
             table[a, b] = mapping[k]
     return table
+
+
+@dataclass(frozen=True)
+class Want:
+    """What an evaluation should produce; nothing else is computed."""
+
+    energy: bool = False
+    energies: bool = False
+    forces: bool = False
+    magnetic_forces: bool = False
+    virial: bool = False
 
 
 @dataclass(frozen=True)
@@ -252,16 +249,16 @@ class Term(Parameterised):
         ``(f, data)`` with ``f(positions, data, forces)`` a numba function adding
         bitwise the forces :meth:`compute` adds with ``Want(forces=True)``, with
         the twin :meth:`compute` calls at this size (serial where
-        :func:`ase_spin.threads.tiny`, else as the kernel's ``always`` says).
+        :func:`ase_spin._jit.threads.tiny`, else as the kernel's ``always`` says).
         None (the default): the integrators take their general path."""
         return None
 
     def lammps(self, types):
-        """This term as LAMMPS input, for :func:`ase_spin.lammps.write_lammps`: a
-        list of :class:`~ase_spin.lammps.LammpsPair` (a pair style, its
+        """This term as LAMMPS input, for :func:`ase_spin.interop.lammps.write_lammps`: a
+        list of :class:`~ase_spin.terms.lammps_form.LammpsPair` (a pair style, its
         ``pair_coeff`` lines and ``pair_modify`` options) and
-        :class:`~ase_spin.lammps.LammpsFix` (e.g. ``precession/spin``) for the
-        atom types ``types`` (:class:`~ase_spin.lammps.LammpsTypes`: symbols by
+        :class:`~ase_spin.terms.lammps_form.LammpsFix` (e.g. ``precession/spin``) for the
+        atom types ``types`` (:class:`~ase_spin.interop.lammps.LammpsTypes`: symbols by
         type, which are magnetic, the rotation into LAMMPS's frame). A term
         LAMMPS cannot express raises NotImplementedError saying why."""
         raise NotImplementedError(f"LAMMPS has no counterpart of {type(self).__name__}")
@@ -602,43 +599,6 @@ def compile_pair_pass(field, energy, name):
                         parallel=True)
 
 
-def _source_digest():
-    """The package's source digest (:func:`ase_spin.compilation.source_digest`)."""
-    from ..compilation import source_digest
-
-    return source_digest()
-
-
-def compile_with(skeleton, functions, name, parallel=False):
-    """``skeleton`` compiled with the compiled ``functions`` (a mapping from
-    the global names it calls to dispatchers) bound in, cached on disk.
-
-    numba cannot cache a kernel that takes functions as arguments or is built
-    in a closure; a copy of the skeleton's code with the functions as globals
-    and a name of its own can be. The name carries a hash of the functions'
-    names and code and of the package's source files (numba keys a cached
-    kernel by its own file only, while the functions bound here are compiled
-    into the skeleton with the helpers they call, from other files), so a
-    cached skeleton does not outlive an edit of anything it runs, and two
-    combinations never share a cache entry."""
-    import hashlib
-    import types
-
-    code = hashlib.sha1(_source_digest())
-    for key, f in sorted(functions.items()):
-        py = f.py_func
-        code.update(f"{key}={py.__module__}.{py.__qualname__}".encode())
-        code.update(py.__code__.co_code)
-        code.update(repr((py.__code__.co_consts, py.__code__.co_names)).encode())
-    glob = dict(skeleton.__globals__, **functions)
-    fn = types.FunctionType(skeleton.__code__, glob, f"{skeleton.__name__}_{name}")
-    fn.__qualname__ = f"{skeleton.__name__}_{name}_{code.hexdigest()[:12]}"
-    fn.__module__ = skeleton.__module__
-    if parallel:
-        return nb.njit(cache=True, parallel=prange_only(), error_model="numpy")(fn)
-    return nb.njit(cache=True)(fn)
-
-
 class PairSpinTerm(SpinTerm):
     """A spin term that is a sum over pairs, built on :func:`_pair_pass`.
 
@@ -689,16 +649,12 @@ class PairOperator(SpinOperator):
         return self.site_function, (self.pairs.row, self.pairs.j, *self.data)
 
     def field(self, W, out, mean=False):
-        from .. import threads
-
         data = self.mean_data if mean else self.data
         p = self.pairs
         self._pass(threads.count(), p.row, p.j, p.half, W, data, out, _NO_FIELD,
                    _NO_SITE_ENERGIES, True, False, False, False, False)
 
     def add(self, W, want, magnetic_forces, forces, energies):
-        from .. import threads
-
         p = self.pairs
         out = self._pass(threads.count(), p.row, p.j, p.half, W, self.data, magnetic_forces,
                          forces, energies, want.magnetic_forces, want.forces, want.energy,

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import numba as nb
-import numpy as np
 
 from ..neighbors import separation
 from ..validate import flag
-from .base import PairSpinTerm
-from .exchange import _NO_D, Exchange, _copy_positions
+from .base import PairSpinTerm, resolve_pairs
+from .exchange import NO_ROWS, BetheSlater, Exchange, copy_positions
+from .lammps_form import LammpsPair, number_text
 
 __all__ = ["BiquadraticExchange"]
 
@@ -118,10 +118,6 @@ class BiquadraticExchange(PairSpinTerm):
         """``pair_style spin/exchange/biquadratic rc`` with ``pair_coeff I J
         biquadratic rc J1 J2 J3 K1 K2 K3 [offset yes]``: Bethe–Slater J and K
         only (LAMMPS's form)."""
-        from ..lammps import LammpsPair, _f
-        from .base import resolve_pairs
-        from .exchange import BetheSlater
-
         tables = [resolve_pairs(c, types.symbols, f"BiquadraticExchange {what}")
                   for c, what in ((self.J, "J"), (self.K, "K"))]
         coeffs = []
@@ -136,10 +132,10 @@ class BiquadraticExchange(PairSpinTerm):
                 if c is None or not (types.magnetic[i - 1] and types.magnetic[j - 1]):
                     args.append("0.0 0.0 1.0")
                 else:
-                    args.append(f"{_f(c.J1)} {_f(c.J2)} {_f(c.J3)}")
-            coeffs.append((i, j, f"biquadratic {_f(self.rc)} {' '.join(args)}"
+                    args.append(f"{number_text(c.J1)} {number_text(c.J2)} {number_text(c.J3)}")
+            coeffs.append((i, j, f"biquadratic {number_text(self.rc)} {' '.join(args)}"
                            + (" offset yes" if self.offset else "")))
-        return [LammpsPair("spin/exchange/biquadratic", _f(self.rc), coeffs)]
+        return [LammpsPair("spin/exchange/biquadratic", number_text(self.rc), coeffs)]
 
     def _parts(self):
         """J and K each as an exchange term: their tables and pair geometry."""
@@ -166,11 +162,11 @@ class BiquadraticExchange(PairSpinTerm):
         opK = K._operator(pairs, previous[1], len(positions), virial)
         if opJ.pos is not None:
             # one copy for both (they are always prepared together, at the same q)
-            opJ.pos = opK.pos = positions = _copy_positions(positions, opJ.pos)
+            opJ.pos = opK.pos = positions = copy_positions(positions, opJ.pos)
         J._fill(opJ, positions, types, bound[0], other[0])
         K._fill(opK, positions, types, bound[1], other[1])
         c = 1.0 if self.offset else 0.0
-        geometry = (opJ.pos if opJ.pos is not None else _NO_D, pairs.images, pairs.image, c)
+        geometry = (opJ.pos if opJ.pos is not None else NO_ROWS, pairs.images, pairs.image, c)
         vectors = (opJ.g, opK.g, opJ.G, opK.G)
         data = (opJ.J, opK.J, *vectors, *geometry)
         mean_data = ((opJ.Jbar, opK.Jbar, *vectors, *geometry) if opJ.Jbar is not None

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from .._jit.threads import threaded
 from ..neighbors import separation
-from ..threads import threaded
 from ..validate import length, real_scalar, unit_vector
-from .base import (PairSpinTerm, is_pair_mapping, pair_values,
-                   resolve_pairs)
+from .base import PairSpinTerm, is_pair_mapping, pair_values, resolve_pairs
+from .lammps_form import LammpsPair, number_text, vector_text
 
 __all__ = ["DMI"]
 
@@ -173,7 +173,6 @@ class DMI(PairSpinTerm):
         per pair of types, (dx, dy, dz) a unit vector (LAMMPS divides it by its
         squared length). Energy and magnetic forces as here; LAMMPS's lattice
         force differs (see the class docstring)."""
-        from ..lammps import LammpsPair, _f, _v
 
         D = _pair_table(self.D, types.symbols, "DMI D")
         d = _pair_table(self.direction, types.symbols, "DMI direction")
@@ -185,8 +184,8 @@ class DMI(PairSpinTerm):
                 strength, direction = 0.0, np.array([0.0, 0.0, 1.0])
             else:
                 strength, direction = D[a, b], types.vector(d[a, b])
-            coeffs.append((i, j, f"dmi {_f(self.rc)} {_f(strength)} {_v(direction)}"))
-        return [LammpsPair("spin/dmi", _f(self.rc), coeffs)]
+            coeffs.append((i, j, f"dmi {number_text(self.rc)} {number_text(strength)} {vector_text(direction)}"))
+        return [LammpsPair("spin/dmi", number_text(self.rc), coeffs)]
 
     def bind(self, system):
         symbols = system.species.symbols

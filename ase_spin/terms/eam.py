@@ -9,13 +9,14 @@ from collections.abc import Mapping
 import numba as nb
 import numpy as np
 
-from .. import threads
-from ..neighbors import (balanced_chunks, reduce_threads, reduce_threads_serial, separation,
-                         sum_over_threads)
-from ..threads import threaded
+from .._jit import threads
+from .._jit.reductions import (balanced_chunks, reduce_threads, reduce_threads_serial,
+                               sum_over_threads)
+from .._jit.threads import threaded
+from ..neighbors import separation
 from .base import PairParameters, Term
-from .eam_files import (EAMFileError, lammps_arrays, lammps_potential_path, read_potential,
-                        spline)
+from .eam_files import EAMFileError, lammps_arrays, lammps_potential_path, read_potential, spline
+from .lammps_form import LammpsPair
 
 __all__ = ["EAM", "EAMFileError", "lammps_potential_path"]
 
@@ -101,7 +102,6 @@ class EAM(Term):
         elements-by-type`` (NULL for a species left out), or ``eam`` with one
         funcfl file per type (``pair_coeff I I FILE``, LAMMPS mixing the
         rest). The files are copied next to the deck."""
-        from ..lammps import LammpsPair
 
         data = self._data
         mapped = []

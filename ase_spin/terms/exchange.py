@@ -5,13 +5,16 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .. import threads
-from ..neighbors import (balanced_chunks, reduce_threads, reduce_threads_serial, separation,
-                         sum_over_threads)
-from ..threads import threaded
+from .._jit import threads
+from .._jit.cloning import kernel_twin
+from .._jit.reductions import (balanced_chunks, reduce_threads, reduce_threads_serial,
+                               sum_over_threads)
+from .._jit.threads import threaded
+from ..neighbors import separation
 from ..validate import flag, length, real_scalar
-from .base import (Parameterised, SpinOperator, SpinTerm, is_pair_mapping, kernel_twin,
-                   linear_pair_field, pair_values, resolve_pairs)
+from .base import (Parameterised, SpinOperator, SpinTerm, Want, is_pair_mapping, linear_pair_field,
+                   pair_values, resolve_pairs)
+from .lammps_form import LammpsPair, number_text
 
 __all__ = ["Coupling", "BetheSlater", "Cubic", "Exchange", "ExchangeOperator"]
 
@@ -176,8 +179,8 @@ class ExchangeOperator(SpinOperator):
 
     def __init__(self, pairs, J, g, G, pos, offset=0.0):
         self.pairs, self.J, self.g, self.G, self.pos = pairs, J, g, G, pos
-        # the pair vectors G are kept (else g = J'(r)/r; G is then the empty _NO_D)
-        self.stored = G is not _NO_D
+        # the pair vectors G are kept (else g = J'(r)/r; G is then the empty NO_ROWS)
+        self.stored = G is not NO_ROWS
         self.Jbar = None
         self.offset = offset
         # (rc², form, p0, p1, p2) of a one-species compiled coupling, else None
@@ -226,7 +229,7 @@ class ExchangeOperator(SpinOperator):
         if self.pos is None and want.virial:
             raise ValueError("this exchange operator was prepared without virial=True: "
                              "it keeps no positions to give the virial from")
-        pos = self.pos if self.pos is not None else _NO_D
+        pos = self.pos if self.pos is not None else NO_ROWS
         # the G kernels give no virial: a pass of its own (rare: stress frames)
         in_pass = want.virial and not self.stored
         if self.stored:
@@ -254,13 +257,11 @@ class ExchangeOperator(SpinOperator):
         thermostat's field after its noise, with the step's last forces)."""
         pairs = self.pairs
         if not (pairs.half and self.stored):  # no twin for these forms: two passes
-            from ..hamiltonian import Want  # (it imports the terms)
-
-            self.add(W, Want(forces=True), _NO_D, forces, _NO_EX)
+            self.add(W, Want(forces=True), NO_ROWS, forces, _NO_EX)
             self.field(u, field)
             return
         _spin_pass_half_forces_field(threads.count(), pairs.row, pairs.j, pairs.image,
-                                     pairs.images, self.J, self.g, self.G, _NO_D, W, u,
+                                     pairs.images, self.J, self.g, self.G, NO_ROWS, W, u,
                                      self.offset, field, forces, _NO_EX, True, True, False,
                                      False, False)
 
@@ -289,8 +290,8 @@ class ExchangeOperator(SpinOperator):
         with_field = u is not None
         keep = np.empty((threads.count(), n, 9 if with_field else 6))
         _forces_two_pass(threads.count(), pairs.row, pairs.j, self.G, there.G, W,
-                         self.offset, forces, keep, there.J, u if with_field else _NO_D,
-                         field if with_field else _NO_D)
+                         self.offset, forces, keep, there.J, u if with_field else NO_ROWS,
+                         field if with_field else NO_ROWS)
         return keep
 
 
@@ -304,8 +305,8 @@ def add_kept(keep, base, out):
 def _field(pairs, J, W, out):
     """out_i += Σ_j J_k W_j over a pair list (full: gather; half: scatter)."""
     kernel = _spin_pass_half_field if pairs.half else _spin_pass_kernel
-    kernel(threads.count(), pairs.row, pairs.j, pairs.image, pairs.images, J, _NO_EX, _NO_D,
-           _NO_D, W, W, 0.0, out, _NO_D, _NO_EX, True, False, False, False, False)
+    kernel(threads.count(), pairs.row, pairs.j, pairs.image, pairs.images, J, _NO_EX, NO_ROWS,
+           NO_ROWS, W, W, 0.0, out, NO_ROWS, _NO_EX, True, False, False, False, False)
 
 
 @nb.njit(cache=True, inline="always")
@@ -391,7 +392,6 @@ class Exchange(SpinTerm):
         has no other J(r) and no tabulated spin pair style). Pairs switched off
         (None) or with a non-magnetic species get J1 = 0: LAMMPS's exchange acts
         on the unit spins whatever their moment."""
-        from ..lammps import LammpsPair, _f
 
         couplings = resolve_pairs(self.coupling, types.symbols, "Exchange coupling")
         coeffs = []
@@ -406,10 +406,10 @@ class Exchange(SpinTerm):
             if c is None or not (types.magnetic[i - 1] and types.magnetic[j - 1]):
                 args = "0.0 0.0 1.0"
             else:
-                args = f"{_f(c.J1)} {_f(c.J2)} {_f(c.J3)}"
-            coeffs.append((i, j, f"exchange {_f(self.rc)} {args}"
+                args = f"{number_text(c.J1)} {number_text(c.J2)} {number_text(c.J3)}"
+            coeffs.append((i, j, f"exchange {number_text(self.rc)} {args}"
                            + (" offset yes" if self.offset else "")))
-        return [LammpsPair("spin/exchange", _f(self.rc), coeffs)]
+        return [LammpsPair("spin/exchange", number_text(self.rc), coeffs)]
 
     @property
     def energy_offset(self):
@@ -426,7 +426,7 @@ class Exchange(SpinTerm):
         """
         op = self._operator(pairs, out, len(positions), virial)
         if op.pos is not None:
-            op.pos = positions = _copy_positions(positions, op.pos)
+            op.pos = positions = copy_positions(positions, op.pos)
         self._fill(op, positions, types, bound, mean_with)
         return op
 
@@ -447,7 +447,7 @@ class Exchange(SpinTerm):
         if stored:
             g, G = _NO_EX, np.empty((n, 3))
         else:
-            g, G = np.empty(n), _NO_D
+            g, G = np.empty(n), NO_ROWS
         return ExchangeOperator(pairs, np.empty(n), g, G,
                                 np.empty((natoms, 3)) if keep else None, self.energy_offset)
 
@@ -516,11 +516,11 @@ class Exchange(SpinTerm):
         return out[0], out[1:]
 
 
-_NO_D = np.zeros((0, 3))
+NO_ROWS = np.zeros((0, 3))
 _NO_EX = np.zeros(0)
 
 
-def _copy_positions(positions, buffer):
+def copy_positions(positions, buffer):
     """``positions`` copied into ``buffer`` (an (N, 3) float64 array, reused
     when its shape fits, else a new one): the operator's own copy, so that
     buffers the integrators reuse or users edit cannot change an operator

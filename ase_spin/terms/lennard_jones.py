@@ -5,13 +5,15 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .. import threads
-from ..neighbors import (balanced_chunks, reduce_threads, reduce_threads_serial, separation,
-                         sum_over_threads)
-from ..threads import threaded
+from .._jit import threads
+from .._jit.cloning import kernel_twin
+from .._jit.reductions import (balanced_chunks, reduce_threads, reduce_threads_serial,
+                               sum_over_threads)
+from .._jit.threads import threaded
+from ..neighbors import separation
 from ..validate import length
-from .base import (Term, is_pair_mapping, kernel_twin, pair_values, real_or_none,
-                   resolve_pairs)
+from .base import Term, is_pair_mapping, pair_values, real_or_none, resolve_pairs
+from .lammps_form import LammpsPair, number_text
 
 __all__ = ["LennardJones"]
 
@@ -126,7 +128,6 @@ class LennardJones(Term):
         types (a switched-off pair: ε = 0); ``"shift"`` is ``pair_modify shift
         yes``. ``"smooth"`` is refused: LAMMPS's smoothed LJ styles (lj/smooth,
         lj/smooth/linear, lj/gromacs) switch the force, not the energy by this S(r)."""
-        from ..lammps import LammpsPair, _f
 
         if self.mode == "smooth":
             raise NotImplementedError(
@@ -141,8 +142,8 @@ class LennardJones(Term):
             e, s, rc = eps[i - 1, j - 1], sig[i - 1, j - 1], rcs[i - 1, j - 1]
             if e is None or e == 0.0 or s is None:
                 e, s = 0.0, 1.0
-            coeffs.append((i, j, f"{_f(e)} {_f(s)} {_f(rc)}"))
-        return [LammpsPair("lj/cut", _f(self.cutoff), coeffs,
+            coeffs.append((i, j, f"{number_text(e)} {number_text(s)} {number_text(rc)}"))
+        return [LammpsPair("lj/cut", number_text(self.cutoff), coeffs,
                            ["shift yes"] if self.mode == "shift" else [])]
 
     def compute(self, positions, pairs, types, table, forces, energies, want):

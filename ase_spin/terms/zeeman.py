@@ -5,9 +5,10 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..constants import MU_B
+from ..constants import MU_B, MU_B_LAMMPS
 from ..validate import positive_scalar, real_array, real_scalar, unit_vector
 from .base import SingleSiteTerm
+from .lammps_form import LammpsFix, number_text, vector_text
 
 __all__ = ["Zeeman"]
 
@@ -77,9 +78,6 @@ class Zeeman(SingleSiteTerm):
         """``fix precession/spin zeeman H x y z``: LAMMPS's energy is
         −2 μB' μ_i s·H with its μB' = 5.78901e-5 eV/T, so H is written scaled by
         g μB / (2 μB') (exactly H with g = 2, ``mu_B=MU_B_LAMMPS``)."""
-        from ..constants import MU_B_LAMMPS
-        from ..lammps import LammpsFix, _f, _v
-
         scale = self.g * self.mu_B / (2.0 * MU_B_LAMMPS)
         if self.direction is not None:
             magnitude, direction = self.field, self.direction
@@ -87,8 +85,8 @@ class Zeeman(SingleSiteTerm):
             magnitude = float(np.linalg.norm(self.H))
             direction = self.H if magnitude > 0 else np.array([0.0, 0.0, 1.0])
         magnitude = magnitude if scale == 1.0 else magnitude * scale
-        return [LammpsFix("precession/spin", f"zeeman {_f(magnitude)} "
-                          f"{_v(types.vector(direction))}")]
+        return [LammpsFix("precession/spin", f"zeeman {number_text(magnitude)} "
+                          f"{vector_text(types.vector(direction))}")]
 
     def bind(self, system):
         h = (self.g * self.mu_B) * system.moments[:, None] * self.H[None, :]

@@ -35,9 +35,9 @@ from pathlib import Path
 import numpy as np
 from ase import Atoms, units
 
-from .calculator import SpinLatticeCalculator
-from .spins import get_spins, set_spins
-from .terms.exchange import Coupling, Exchange
+from ase_spin.calculator import SpinLatticeCalculator
+from ase_spin.spins import get_spins, set_spins
+from ase_spin.terms.exchange import Coupling, Exchange
 
 __all__ = ["spirit_available", "load_spirit", "spirit_units", "SpiritHeisenberg",
            "ConstantCoupling", "run_collective", "run_splitting", "SOLVERS"]
@@ -260,7 +260,7 @@ class SpiritHeisenberg:
 def run_collective(scene, spins, order, dt_ps, steps, threads=None, tol=None):
     """``(final spins, wall time of the steps, mean sweeps per step)`` of
     CollectivePRK on ``scene`` (a :class:`SpiritHeisenberg`), set-up not timed."""
-    from .md.collective import CollectivePRK
+    from ase_spin.md.collective import CollectivePRK
 
     dyn = CollectivePRK(scene.atoms(spins), dt_ps * _PS, order=order, threads=threads,
                         tol=tol, **scene.integrator_options())
@@ -270,7 +270,7 @@ def run_collective(scene, spins, order, dt_ps, steps, threads=None, tol=None):
 def run_splitting(scene, spins, order, dt_ps, steps, rotation="cayley"):
     """``(final spins, wall time of the steps, nan)`` of :class:`SuzukiTrotter`
     (sequential sweeps: one thread) on ``scene``, set-up not timed."""
-    from .md.splitting import SuzukiTrotter
+    from ase_spin.md.splitting import SuzukiTrotter
 
     dyn = SuzukiTrotter(scene.atoms(spins), dt_ps * _PS, order=order, rotation=rotation,
                         **scene.integrator_options())

@@ -14,12 +14,13 @@ from __future__ import annotations
 import os
 import threading
 import time
-import types
 
 import numba as nb
 
+from .cloning import prange_only, serial_twin
+
 __all__ = ["SERIAL_BELOW", "SERIAL_ALL_BELOW", "threads_for", "count", "small", "tiny",
-           "threaded", "serial_twin", "prange_only", "AdaptiveThreads"]
+           "threaded", "AdaptiveThreads"]
 
 #: Systems with fewer atoms than this run the serial twins.
 SERIAL_BELOW = 1500
@@ -83,38 +84,6 @@ def small():
 def count():
     """Chunks of work for the current kernels (1 when serial)."""
     return 1 if _mode.serial else chunks()
-
-
-def serial_twin(dispatcher, **replace):
-    """``dispatcher``'s Python function compiled again without ``parallel``,
-    under its own name (so numba's on-disk cache keeps the two apart), with
-    global names in ``replace`` swapped (e.g. a threaded helper it calls for its
-    serial twin)."""
-    fn = dispatcher.py_func
-    glob = dict(fn.__globals__)
-    glob.update(replace)
-    twin = types.FunctionType(fn.__code__, glob, fn.__name__ + "_serial", fn.__defaults__,
-                              fn.__closure__)
-    twin.__qualname__ = fn.__qualname__ + "_serial"
-    twin.__module__ = fn.__module__
-    twin.__doc__ = fn.__doc__
-    # the numpy error model, as the threaded kernels have: 1/0 gives inf, not an exception
-    return nb.njit(cache=True, error_model="numpy")(twin)
-
-
-def prange_only():
-    """numba's ``parallel=`` option for this package's threaded kernels: only
-    the explicit ``prange`` loops run on threads.
-
-    With ``parallel=True`` numba also turns every array expression and
-    allocation (``np.zeros`` of the per-thread buffers, ``.max()``, ...) into
-    a parallel loop of its own, each compiled as a separate threaded function;
-    the kernels here split their work into fixed chunks by hand and gain
-    nothing from those, while they doubled the compile time of the largest
-    kernels (Lennard-Jones and exchange: 2.5–3.2 s each to 1.4–1.7 s,
-    benchmarks/first_use.py). A new dict per call: numba consumes it."""
-    return dict(prange=True, comprehension=False, reduction=False, inplace_binop=False,
-                setitem=False, numpy=False, stencil=False, fusion=False)
 
 
 class _Threaded:

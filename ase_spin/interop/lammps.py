@@ -24,13 +24,21 @@ from __future__ import annotations
 import re
 import shutil
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from ase import Atoms, units
 
-from .constants import LAMMPS_HBAR_EV_PS
+from ..calculator import SpinLatticeCalculator
+from ..constants import LAMMPS_HBAR_EV_PS
+from ..hamiltonian import Hamiltonian
+from ..md.base import SpinLatticeDynamics
+from ..md.collective import CollectivePRK
+from ..md.splitting import SuzukiTrotter
+from ..spins import get_moments, split_moments
+from ..terms.base import Term
+from ..terms.lammps_form import LammpsFix, LammpsPair, number_text, vector_text
 
 __all__ = ["write_lammps", "read_lammps_spin_dump", "LammpsTypes", "LammpsPair", "LammpsFix",
            "LammpsFiles", "LammpsIntegratorWarning"]
@@ -43,45 +51,6 @@ _HEADER = "ase_spin -> LAMMPS (atom_style spin)"
 
 class LammpsIntegratorWarning(UserWarning):
     """The exported deck integrates differently from the integrator given."""
-
-
-def _f(x):
-    """A float as the shortest text that reads back to the same double."""
-    return repr(float(x))
-
-
-def _v(v):
-    return " ".join(_f(x) for x in v)
-
-
-@dataclass
-class LammpsPair:
-    """One pair style of a term, as LAMMPS takes it.
-
-    ``style`` (``"lj/cut"``), ``args`` (its global arguments, ``"4.7"``),
-    ``coeffs``: (I, J, arguments) for ``pair_coeff I J [style] arguments`` with
-    I, J type numbers or ``"*"``; ``modify``: ``pair_modify`` options of this
-    style (``"shift yes"``); ``files``: files the coefficients name (potential
-    files), copied next to the deck and named there by their base name.
-    """
-
-    style: str
-    args: str = ""
-    coeffs: list = field(default_factory=list)
-    modify: list = field(default_factory=list)
-    files: list = field(default_factory=list)
-
-
-@dataclass
-class LammpsFix:
-    """A fix of a term: ``fix ID group style args`` (``style`` e.g.
-    ``"precession/spin"``, ``args`` ``"zeeman 1.0 0 0 1"``); ``energy``: its
-    energy is part of the potential energy (``fix_modify ID energy yes``)."""
-
-    style: str
-    args: str
-    group: str = "all"
-    energy: bool = True
 
 
 class LammpsTypes:
@@ -192,10 +161,6 @@ def _lammps_frame(cell):
 # -- the Hamiltonian ------------------------------------------------------------
 
 def _terms(hamiltonian, atoms):
-    from .calculator import SpinLatticeCalculator
-    from .hamiltonian import Hamiltonian
-    from .terms.base import Term
-
     h = hamiltonian if hamiltonian is not None else atoms.calc
     if isinstance(h, SpinLatticeCalculator):
         h = h.hamiltonian
@@ -268,10 +233,6 @@ def _fix_commands(parts):
 
 def _integrator(dyn, timestep, lattice, notices):
     """(timestep in ASE units, lattice keyword, thermostat settings or None)."""
-    from .md.base import SpinLatticeDynamics
-    from .md.collective import CollectivePRK
-    from .md.splitting import SuzukiTrotter
-
     if dyn is None:
         if timestep is None:
             raise ValueError("write_lammps needs the timestep: pass an integrator (dynamics=) "
@@ -355,7 +316,7 @@ def _data_file(atoms, species, masses, box, rotation, unit, mu):
         vel = vel @ rotation
         unit = unit @ rotation
     types = np.searchsorted(np.array(species), np.array(atoms.get_chemical_symbols())) + 1
-    rot = "none" if rotation is None else _v(rotation.ravel())
+    rot = "none" if rotation is None else vector_text(rotation.ravel())
     lines = [f"{_HEADER}; types {' '.join(species)}; rotation {rot}", "",
              f"{n} atoms", f"{len(species)} atom types", ""]
     lo = np.zeros(3)
@@ -366,21 +327,21 @@ def _data_file(atoms, species, masses, box, rotation, unit, mu):
             lo[d] = min(0.0, pos[:, d].min() - 1.0)
             hi[d] = max(hi[d], pos[:, d].max() + 1.0)
     for d, ax in enumerate("xyz"):
-        lines.append(f"{_f(lo[d])} {_f(hi[d])} {ax}lo {ax}hi")
+        lines.append(f"{number_text(lo[d])} {number_text(hi[d])} {ax}lo {ax}hi")
     if np.any(box[np.tril_indices(3, -1)]):
-        lines.append(f"{_f(box[1, 0])} {_f(box[2, 0])} {_f(box[2, 1])} xy xz yz")
+        lines.append(f"{number_text(box[1, 0])} {number_text(box[2, 0])} {number_text(box[2, 1])} xy xz yz")
     lines += ["", "Atom Type Labels", ""]
     lines += [f"{k + 1} {s}" for k, s in enumerate(species)]
     lines += ["", "Masses", ""]
-    lines += [f"{k + 1} {_f(m)}" for k, m in enumerate(masses)]
+    lines += [f"{k + 1} {number_text(m)}" for k, m in enumerate(masses)]
     lines += ["", "Atoms # spin", ""]
     # non-magnetic atoms: a unit direction LAMMPS can normalise, magnitude 0
     unit = np.where(mu[:, None] > 0, unit, [0.0, 0.0, 1.0])
     for k, (t, x, s, m) in enumerate(zip(types.tolist(), pos.tolist(), unit.tolist(),
                                          mu.tolist())):
-        lines.append(f"{k + 1} {t} {_v(x)} {_v(s)} {_f(m)}")
+        lines.append(f"{k + 1} {t} {vector_text(x)} {vector_text(s)} {number_text(m)}")
     lines += ["", "Velocities", ""]
-    lines += [f"{k + 1} {_v(v)}" for k, v in enumerate(vel.tolist())]
+    lines += [f"{k + 1} {vector_text(v)}" for k, v in enumerate(vel.tolist())]
     return "\n".join(lines) + "\n"
 
 
@@ -427,8 +388,6 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
         The paths, the type symbols, the notices issued; ``.command(ranks)``
         is the shell line that runs it.
     """
-    from .spins import get_moments, split_moments
-
     steps = int(steps)
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
@@ -483,13 +442,13 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
     deck += _fix_commands(parts)
     if thermostat is not None:
         # langevin/spin after the precession fixes, before nve/spin (LAMMPS's rule)
-        deck.append(f"fix thermostat_spin all langevin/spin {_f(thermostat['T_spin'])} "
-                    f"{_f(thermostat['alpha'])} {int(seed)}")
+        deck.append(f"fix thermostat_spin all langevin/spin {number_text(thermostat['T_spin'])} "
+                    f"{number_text(thermostat['alpha'])} {int(seed)}")
         if thermostat["friction"] > 0 and lattice == "moving":
             damp = 1.0 / thermostat["friction"] / PS
-            deck.append(f"fix thermostat_lattice all langevin {_f(thermostat['T'])} "
-                        f"{_f(thermostat['T'])} {_f(damp)} {int(seed) + 1} zero yes")
-    deck += [f"fix integrate all nve/spin lattice {lattice}", f"timestep {_f(dt / PS)}", ""]
+            deck.append(f"fix thermostat_lattice all langevin {number_text(thermostat['T'])} "
+                        f"{number_text(thermostat['T'])} {number_text(damp)} {int(seed) + 1} zero yes")
+    deck += [f"fix integrate all nve/spin lattice {lattice}", f"timestep {number_text(dt / PS)}", ""]
     deck += ["compute magnetisation all spin",
              "compute spin_state all property/atom sp spx spy spz fmx fmy fmz",
              "variable pe equal pe", "variable ke equal ke",

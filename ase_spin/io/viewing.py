@@ -26,7 +26,7 @@ import os
 
 import numpy as np
 
-from .spins import get_moments, split_moments
+from ..spins import get_moments, split_moments
 
 __all__ = ["spin_colors", "spin_angles", "magnetization", "write_ovito_xyz",
            "ovito_pipeline", "plot_spins"]

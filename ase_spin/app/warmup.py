@@ -1,7 +1,7 @@
 """Compile the kernels ahead of time: ``ase-spin compile``.
 
 numba compiles each kernel the first time a process calls it and keeps the
-machine code in its disk cache (see :mod:`ase_spin.compilation`). This module
+machine code in its disk cache (see :mod:`ase_spin._jit.cache`). This module
 makes those first calls on purpose, so that a later run starts warm: on a
 cluster's login node before jobs are submitted, in a container image, after an
 install. It runs, for every scene, one evaluation through the calculator
@@ -28,6 +28,15 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from pathlib import Path
+
+import ase_spin
+
+from .._jit import cache as compilation
+from .._jit.reductions import balanced_chunks
+from ..md import fused
+from ..neighbors import NeighborCache
+from ..scenes import fcc_cobalt, field_anisotropy_terms
+from .inputs import build_integrator, build_scene, in_folder, load_input
 
 __all__ = ["BUILTIN", "compile_kernels"]
 
@@ -59,8 +68,6 @@ def _exercise_lists(atoms):
     """The pair lists' later life, which four steps do not reach: sub-lists
     filtered again, and checked against two sets of positions
     (:class:`~ase_spin.neighbors.NeighborCache`)."""
-    from .neighbors import NeighborCache
-
     cache = NeighborCache(4.7, 0.3)
     cell, pbc = atoms.cell.array, atoms.pbc
     cache.update(atoms.positions, cell, pbc)
@@ -81,7 +88,6 @@ def _exercise(atoms, dyn):
     if dyn is not None:
         # the fused step of small systems too: without a warm-up it is compiled
         # only for runs long enough to repay it (md/fused.py)
-        from .md import fused
 
         saved, fused.FUSE_AFTER_STEPS = fused.FUSE_AFTER_STEPS, 0
         try:
@@ -95,10 +101,7 @@ def _exercise(atoms, dyn):
 
 
 def _builtin(task):
-    import ase_spin
     from ase import units
-
-    from .scenes import fcc_cobalt, field_anisotropy_terms
 
     label, n, extra, integrator, keywords = task
     atoms = fcc_cobalt(n, extra=field_anisotropy_terms() if extra else ())
@@ -110,13 +113,12 @@ def _builtin(task):
 
 
 def _input(path):
-    from . import cli
 
     path = Path(path).resolve()
-    spec = cli.load_input(path)
-    with cli._in_folder(path.parent):
-        atoms = cli.build_scene(spec)
-        dyn, _ = cli._integrator(atoms, spec, {"trajectory": None, "log": None}, 1, 2)
+    spec = load_input(path)
+    with in_folder(path.parent):
+        atoms = build_scene(spec)
+        dyn, _ = build_integrator(atoms, spec, {"trajectory": None, "log": None}, 1, 2)
         _exercise(atoms, dyn)
 
 
@@ -162,8 +164,6 @@ def compile_kernels(inputs=(), jobs=1, out=None):
         chains = [[("input", str(p))] for p in inputs]
     else:
         chains = [[("builtin", task) for task in chain] for chain in BUILTIN]
-    from . import compilation
-    from .neighbors import balanced_chunks
 
     print(f"compiling ase_spin's kernels for {sum(map(len, chains))} scene(s) into "
           f"{_where(compilation.cache_dir(balanced_chunks))} (CPU: {_cpu()})",
@@ -199,7 +199,7 @@ def _report(result, out):
 
 def _where(path):
     if os.path.basename(path.rstrip(os.sep)) == "__pycache__":
-        return f"the __pycache__ folders under {Path(__file__).parent}"
+        return f"the __pycache__ folders under {compilation.PACKAGE_ROOT}"
     return path
 
 

@@ -4,7 +4,7 @@ Every hot loop here is compiled by numba with ``cache=True``: the first call of
 each kernel in a fresh install compiles it (a scene's whole set takes 10–20 s
 on an idle 2-core machine, more on a busy one, see docs/benchmarks.md) and
 writes the machine code to numba's on-disk cache; later processes load it in
-milliseconds. ``ase-spin compile`` (:mod:`ase_spin.warmup`) does it ahead of
+milliseconds. ``ase-spin compile`` (:mod:`ase_spin.app.warmup`) does it ahead of
 time. Numba says nothing
 while it compiles, so a first run looks hung. This module listens to numba's
 ``numba:compile`` event, which numba raises only when it compiles — a kernel
@@ -36,6 +36,8 @@ from numba.core import event
 
 __all__ = ["cache_dir", "clear_stale_caches", "install", "source_digest"]
 
+#: The package's folder (this module is in its _jit/).
+PACKAGE_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 #: The file in each numba cache folder holding the source digest its kernels
 #: of this package were compiled from.
 STAMP = "ase_spin-source.sha1"
@@ -73,7 +75,7 @@ class _CompileNotice(event.Listener):
         self.announced = True
         where = cache._cache_path
         if os.path.basename(where.rstrip(os.sep)) == "__pycache__":  # in the source tree
-            package = os.path.dirname(os.path.abspath(__file__))
+            package = PACKAGE_ROOT
             where = f"the __pycache__ folders under {package}"
         message = _MESSAGE.format(where=where)
         stream = self.stream or sys.stderr
@@ -123,7 +125,7 @@ def source_digest():
         from pathlib import Path
 
         digest = hashlib.sha1()
-        root = Path(__file__).resolve().parent
+        root = Path(PACKAGE_ROOT)
         for path in sorted(root.rglob("*.py")):
             try:
                 digest.update(str(path.relative_to(root)).encode())
@@ -149,7 +151,7 @@ def cache_folders():
 
     impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl")
     folders = {}
-    root = Path(__file__).resolve().parent
+    root = Path(PACKAGE_ROOT)
     for folder in sorted({path.parent for path in root.rglob("*.py")}):
         module = str(min(folder.glob("*.py")))
         for locator in impl._locator_classes:

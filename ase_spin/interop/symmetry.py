@@ -20,7 +20,8 @@ from ase.neighborlist import primitive_neighbor_list
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from .validate import positive_scalar, real_array
+from ..terms.tabulated import ShellExchange
+from ..validate import positive_scalar, real_array
 
 __all__ = ["neighbor_shells", "NeighborShells", "Shell", "magnetic_symmetry",
            "MagneticSymmetry"]
@@ -187,8 +188,6 @@ class NeighborShells:
         distinct shell distance: J a sequence (one species pair in the table)
         or a mapping from species pairs to sequences. Shells beyond the values
         given get no exchange."""
-        from .terms.tabulated import ShellExchange
-
         pairs = sorted({s.species for s in self.shells})
         if not isinstance(J, dict):
             if len(pairs) != 1:

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 from ase import Atoms
 
+from ..terms.tabulated import ShellExchange
+
 __all__ = ["read_tb2j", "TB2JExchange"]
 
 #: TB2J's J_iso are in meV over ordered pairs; ase_spin's J in eV over unordered ones.
@@ -66,8 +68,6 @@ class TB2JExchange:
         (species pair and distance), up to ``rmax`` Å (default: all). A shell
         whose pairs' J differ by more than ``spread`` eV gets their mean, with
         a warning naming it."""
-        from .terms.tabulated import ShellExchange
-
         table = {}
         for key, shells in self.shells().items():
             rows = []

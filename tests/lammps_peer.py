@@ -22,7 +22,7 @@ import tempfile
 
 import numpy as np
 
-from .constants import LAMMPS_HBAR_EV_PS
+from ase_spin.constants import LAMMPS_HBAR_EV_PS
 
 __all__ = ["lammps_available", "load_lammps", "LammpsSpin", "LammpsLattice", "LAMMPS_HBAR",
            "LAMMPS_NKTV2P"]
@@ -88,7 +88,7 @@ class LammpsSpin:
         lammps = load_lammps()
         from ase import units
 
-        from .spins import get_moments, split_moments
+        from ase_spin.spins import get_moments, split_moments
 
         cell = atoms.cell.array
         if np.abs(cell[np.triu_indices(3, 1)]).max() > 0:

@@ -1,0 +1,9 @@
+"""Other programs' formats: LAMMPS SPIN decks and dumps, TB2J exchange
+parameters, magnetic symmetry and neighbour shells from spglib."""
+
+from .lammps import read_lammps_spin_dump, write_lammps
+from .symmetry import magnetic_symmetry, neighbor_shells
+from .tb2j import read_tb2j
+
+__all__ = ["write_lammps", "read_lammps_spin_dump", "magnetic_symmetry", "neighbor_shells",
+           "read_tb2j"]
