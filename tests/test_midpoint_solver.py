@@ -7,6 +7,7 @@ from ase import units
 from scipy.optimize import root
 
 import ase_spin
+from ase_spin.md import policy
 from ase_spin import CollectivePRK, SpinLatticeCalculator
 from ase_spin.md import SpinConvergenceError
 from ase_spin.md.kernels import local_midpoint
@@ -354,18 +355,17 @@ def _run(n, dt_fs, order, steps, heavy=False, **kw):
                                                     (3, 0.1, 2, False), (2, 1.0, 2, True),
                                                     (10, 1.0, 2, True)])
 def test_loose_first_solve_gives_the_same_steps(n, dt_fs, order, heavy, monkeypatch):
-    """The first midpoint solve of a step stopped early (collective.first_tolerance)
+    """The first midpoint solve of a step stopped early (policy.first_tolerance)
     changes the steps by the solver tolerance only: the same trajectory to 1e-12
     as with every solve converged to tol, in fewer sweeps. N = 32 takes the fused
     step, N = 108 either (the fused one once compiled), N = 4 000 the general one; ``heavy`` atoms make q̃ settle right after the
     loose solve, which must then be finished at the same couplings."""
-    from ase_spin.md import collective
-
     default = _run(n, dt_fs, order, 10, heavy)
-    monkeypatch.setattr(collective, "FIRST_SOLVE_FRACTION", 0.0)
+    monkeypatch.setattr(policy, "FIRST_SOLVE_FRACTION", 0.0)
     tight = _run(n, dt_fs, order, 10, heavy)
     if heavy:  # every first solve loose, so that the finishing solve runs at every step
-        monkeypatch.setattr(collective, "first_tolerance", lambda tol, settle: 1e-7)
+        monkeypatch.setattr(policy, "FIRST_SOLVE_FRACTION", 1e300)
+        monkeypatch.setattr(policy, "FIRST_SOLVE_LOOSEST", 1e-7)
         loose = _run(n, dt_fs, order, 10, heavy)
         assert np.abs(loose[1] - tight[1]).max() < 1e-12
         assert np.abs(loose[0] - tight[0]).max() < 1e-12
@@ -596,7 +596,7 @@ def test_colour_ordered_sweeps_give_the_same_bits_in_any_chunks():
 
 
 def test_frozen_stages_take_colour_order_where_it_pays():
-    """kernels.next_sweep_order: a stage tries colour order after an
+    """policy.next_sweep_order: a stage tries colour order after an
     index-order solve of 5 sweeps or more, goes back after a colour-ordered
     one of 3 or fewer, and for good when colour order contracts by less than
     the index order's contraction to the power 1.3; Jacobi sweeps change
@@ -606,16 +606,15 @@ def test_frozen_stages_take_colour_order_where_it_pays():
     it; a frozen one of threaded size (4000 atoms) tries it, finds its 12
     colours too many there (CollectivePRK._colour_pairs) and keeps index
     order for good, its full list let go."""
-    from ase_spin.md import kernels
 
-    INDEX, COLOUR, KEPT = kernels.INDEX_ORDER, kernels.COLOUR_ORDER, kernels.INDEX_ORDER_KEPT
-    assert kernels.next_sweep_order(INDEX, True, 5, 0.2, -1.0) == (COLOUR, 0.2)
-    assert kernels.next_sweep_order(INDEX, True, 4, -1.0, 0.3) == (INDEX, 0.3)
-    assert kernels.next_sweep_order(COLOUR, True, 3, 0.01, 0.2) == (INDEX, 0.2)
-    assert kernels.next_sweep_order(COLOUR, True, 6, 0.2 ** 1.4, 0.2) == (COLOUR, 0.2)
-    assert kernels.next_sweep_order(COLOUR, True, 6, 0.2 ** 1.2, 0.2) == (KEPT, 0.2)
-    assert kernels.next_sweep_order(KEPT, True, 9, 0.3, 0.2) == (KEPT, 0.3)
-    assert kernels.next_sweep_order(COLOUR, False, 1, -1.0, 0.2) == (COLOUR, 0.2)
+    INDEX, COLOUR, KEPT = policy.INDEX_ORDER, policy.COLOUR_ORDER, policy.INDEX_ORDER_KEPT
+    assert policy.next_sweep_order(INDEX, True, 5, 0.2, -1.0) == (COLOUR, 0.2)
+    assert policy.next_sweep_order(INDEX, True, 4, -1.0, 0.3) == (INDEX, 0.3)
+    assert policy.next_sweep_order(COLOUR, True, 3, 0.01, 0.2) == (INDEX, 0.2)
+    assert policy.next_sweep_order(COLOUR, True, 6, 0.2 ** 1.4, 0.2) == (COLOUR, 0.2)
+    assert policy.next_sweep_order(COLOUR, True, 6, 0.2 ** 1.2, 0.2) == (KEPT, 0.2)
+    assert policy.next_sweep_order(KEPT, True, 9, 0.3, 0.2) == (KEPT, 0.3)
+    assert policy.next_sweep_order(COLOUR, False, 1, -1.0, 0.2) == (COLOUR, 0.2)
     for dt, lattice, expected in [(2.0, "frozen", {COLOUR}), (0.05, "frozen", {INDEX, KEPT}),
                                   (2.0, "moving", {INDEX})]:
         dyn = CollectivePRK(fcc_cobalt(3), dt * units.fs, order=4, lattice=lattice)
@@ -631,12 +630,11 @@ def test_colour_order_reads_the_full_lists_rows_in_colour_order():
     """fcc Co frozen (108 atoms) at 2 fs, order 4: the stages' colour-ordered
     solves read the full list's rows copied in colour order, kept once (each
     row the same pairs in the same order as the list's own)."""
-    from ase_spin.md import kernels
 
     dyn = CollectivePRK(fcc_cobalt(3), 2.0 * units.fs, order=4, lattice="frozen")
     dyn.run(12)
     st = dyn._state
-    assert kernels.COLOUR_ORDER in set(st.sweep_order)
+    assert policy.COLOUR_ORDER in set(st.sweep_order)
     c, (prow, pnbr, pc) = st.colour_rows
     pairs, J = st.full_ops[0].linear_pairs(False)
     assert c is J
@@ -670,7 +668,6 @@ def test_two_colourable_lattice_of_threaded_size_takes_colour_order():
     4 fs: its stages take colour order (two colours), in fewer sweeps than
     with index order alone, to the same trajectory; one thread and two give
     the same bits."""
-    from ase_spin.md import kernels
     from ase_spin._jit.threads import SERIAL_BELOW
 
     assert 12 ** 3 >= SERIAL_BELOW
@@ -683,7 +680,7 @@ def test_two_colourable_lattice_of_threaded_size_takes_colour_order():
         dyn.run(6)
         runs[threads, colour] = (ase_spin.get_spins(atoms), dyn.total_iterations,
                                  set(dyn._state.sweep_order))
-    assert kernels.COLOUR_ORDER in runs[1, True][2]
+    assert policy.COLOUR_ORDER in runs[1, True][2]
     assert np.array_equal(runs[1, True][0], runs[2, True][0])
     assert runs[1, True][1] == runs[2, True][1] < 0.8 * runs[2, False][1]
     assert np.abs(runs[2, True][0] - runs[2, False][0]).max() < 1e-12

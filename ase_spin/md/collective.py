@@ -16,58 +16,18 @@ from .._jit import threads
 from ..constants import HBAR
 from ..neighbors import rows_in_order
 from ..validate import integer, real_scalar
-from . import fused, kernels
+from . import fused, kernels, policy
+from .policy import SOLVERS, TOL_RANGE, StepPolicy
 from .base import IntegrationError, SpinConvergenceError, SpinLatticeDynamics, UnstableStepError
 
 __all__ = ["CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError",
-           "HBAR", "TOL_RANGE"]
+           "HBAR"]
 
-_EPS = np.finfo(float).eps
-_MAX_OUTER = 12
-
-#: Tightest and loosest stopping tolerances of the midpoint iteration (on unit vectors).
-TOL_RANGE = (1e-16, 1e-3)
 #: Colours a lattice of threaded size may have for its frozen stages to take
 #: colour order (CollectivePRK._colour_pairs): two, a two-colourable lattice
 #: (simple cubic, bcc with its nearest neighbours), where a colour-ordered
 #: sweep squares the error.
 THREADED_COLOURS = 2
-
-#: The midpoint solvers: (Anderson memory, locally exact sweep).
-SOLVERS = {"anderson": (kernels.MEMORY, True), "local": (0, True), "jacobi": (0, False)}
-# "auto": locally exact sweeps (_AUTO_FIRST; a Jacobi sweep after a one-sweep solve
-# at small contraction: kernels.auto_takes_local) while their observed contraction
-# per sweep stays below _AUTO_SWITCH, else the Anderson solver from then on at that
-# stage and step size; a solve of its first mode not done in _AUTO_FIRST_SWEEPS
-# sweeps is redone by it. Locally exact sweeps, not Jacobi ones, although a Jacobi sweep
-# costs ~4 % less: where the predictor leaves one or two sweeps to make (fcc Co at
-# 0.1–0.15 fs) both cost the same, and from 0.25 fs on, or on a frozen lattice,
-# the locally exact sweeps' faster contraction (each spin's own precession solved
-# exactly) saves 7–25 % of a run (docs/benchmarks.md, the midpoint solver).
-_AUTO_FIRST = "local"
-_AUTO_SWITCH = 0.4
-_AUTO_FIRST_SWEEPS = 40
-# Contraction per sweep above which "auto" keeps a copy of the starting guess for
-# the retry (below it, 40 sweeps gain over 27 decades: they do not fail)
-_KEEP_GUESS = 0.2
-#: The first midpoint solve of a (sub)step is converged to this fraction of how far
-#: the update of q̃ moved W in the last step (see first_tolerance).
-FIRST_SOLVE_FRACTION = 0.1
-
-
-def first_tolerance(tol, settle):
-    r"""Tolerance of the first midpoint solve of a coupled (sub)step.
-
-    The first solve uses the couplings at the q̃ drifted with the *predicted* W;
-    the next outer iteration redrifts q̃ with the solved W and solves again,
-    which moves W by some amount δ (``settle``: that of the same stage in the
-    last step). Converging the first solve far below δ is wasted: its result is
-    only the next solve's starting point. So the first solve stops at
-    max(tol, FIRST_SOLVE_FRACTION·δ) (capped at 1e-6); every later solve, and
-    so the W the step keeps, at ``tol``. The fixed point is the same, and the
-    final solve is converged to ``tol`` as before: results differ from a
-    tightly converged first solve by the solver tolerance."""
-    return min(1e-6, max(tol, FIRST_SOLVE_FRACTION * settle))
 
 
 #: From this many atoms on, the second-order step's predictor keeps 16
@@ -168,7 +128,7 @@ class CollectivePRK(SpinLatticeDynamics):
         than 0.4 per sweep, else "anderson" (at that stage and step size), a
         failed "local" solve redone by it; a step's first solve takes Jacobi
         sweeps after one that took a single sweep
-        (:func:`~ase_spin.md.kernels.auto_takes_local`).
+        (:func:`~ase_spin.md.policy.auto_takes_local`).
     lattice : "moving" or "frozen"
         ``"frozen"`` integrates the spins only (as does fixing every atom with
         ``FixAtoms``); pair geometry is then computed once.
@@ -244,10 +204,10 @@ class CollectivePRK(SpinLatticeDynamics):
         st.kept = np.zeros((len(self.gammas), kernels.PREDICTOR_DEPTH, 3 * len(st.probe)))
         st.kept_n = np.zeros(len(self.gammas), dtype=np.int64)
         # per stage, whether its last solve in auto's first mode took one sweep
-        # (kernels.auto_takes_local)
+        # (policy.auto_takes_local)
         st.one_sweep = np.zeros(len(self.gammas), dtype=np.bool_)
         # per stage, the order of its locally exact sweeps and its index-order
-        # sweeps' contraction (a frozen lattice: kernels.next_sweep_order), and
+        # sweeps' contraction (a frozen lattice: policy.next_sweep_order), and
         # the spin operator on the full pair list that colour order needs
         # (made when first needed)
         st.sweep_order = np.zeros(len(self.gammas), dtype=np.int64)
@@ -257,9 +217,26 @@ class CollectivePRK(SpinLatticeDynamics):
 
     # -- the step ---------------------------------------------------------------
 
+    #: What the compiled executor (md/fused.py) may take of this class's steps
+    #: for a small system: the coupled step itself (kick, drift, pair geometry,
+    #: midpoint solves, end forces; ``compiled_step``), its midpoint predictor
+    #: (``compiled_predictor``), and whole runs of steps with nothing between
+    #: them (``compiled_blocks``). A subclass that changes any of these parts
+    #: of the step sets the flag False, and its own methods are then called.
+    compiled_step = True
+    compiled_predictor = True
+    compiled_blocks = True
+
+    def step_policy(self):
+        """The :class:`~ase_spin.md.policy.StepPolicy` this integrator's steps
+        follow now, from its ``tol``, ``max_iter`` and ``solver``; a subclass
+        that tolerates more (a thermostat's noise) states it here."""
+        return StepPolicy.make(self.tol, self.max_iter, self._solver)
+
     def _substep(self, h, stage, want_energy):
         """One second-order step of size h; returns (midpoint sweeps, geometries)."""
         st = self._state
+        st.policy = self.step_policy()
         if not self.magnetic:
             self._lattice_step(h, want_energy)
             return 0, 0
@@ -282,15 +259,17 @@ class CollectivePRK(SpinLatticeDynamics):
         W = self._predict(stage)
         qt_used = spare = None
         iterations = geometries = 0
+        rules = st.policy
         # the first solve is undone to about st.settle[stage] by the q̃ it gives:
-        # converge it only below that (see first_tolerance)
-        first_tol = first_tolerance(self.tol, st.settle[stage])
+        # converge it only below that (see policy.first_tolerance)
+        first_tol = policy.first_tolerance(rules.tol, st.settle[stage], rules.first_fraction,
+                                           rules.first_loosest)
         settle = None
         solves = 0
         loose = False  # the last solve stopped at first_tol > tol
         s_new = None
         pending = None  # the end forces begun in this round's pass (_round_forces)
-        for round_ in range(_MAX_OUTER):
+        for round_ in range(policy.MAX_ROUNDS):
             if s_new is not None and round_ == st.settled_round[stage]:
                 # the round the last step settled in: its forces at q, in the
                 # same pass, also give the end forces (q̃, W) if it settles too
@@ -313,7 +292,7 @@ class CollectivePRK(SpinLatticeDynamics):
             new_q = True  # a new q̃ gets its couplings
             if qt_used is None:
                 self._check_moved(moved_q, atom, h)
-                qtol = self._settled_qtol(largest)
+                qtol = policy.settled_qtol(largest, rules.qtol_floor)
             elif apart <= qtol:
                 if not loose:
                     st.settled_round[stage] = round_
@@ -333,23 +312,23 @@ class CollectivePRK(SpinLatticeDynamics):
                 st.ops_next = ev.spin_operators(qt, out=st.ops_next, mean_with=st.ops,
                                                 half=self.half_lists, refreshed=True)
                 geometries += 1
-            tol = first_tol if solves == 0 else self.tol
+            tol = first_tol if solves == 0 else rules.tol
             W, s_new, its, moved, carry_s = self._solve(s, st.ops_next, W, h, stage, tol=tol,
                                                         first=solves == 0)
             iterations += its
-            loose = tol > self.tol
+            loose = tol > rules.tol
             if new_q:
                 qt_used = qt
                 solves += 1
                 if solves == 2:
                     settle = moved
-            if moved <= self._settled_tol():
+            if moved <= rules.settled_tol:
                 # W moved by round-off only: P and q̃ computed from it stand
                 st.settled_round[stage] = -1  # (no round's forces gave the end's)
                 break
         else:
             raise SpinConvergenceError(
-                f"positions q̃ and midpoint spins did not settle in {_MAX_OUTER} "
+                f"positions q̃ and midpoint spins did not settle in {policy.MAX_ROUNDS} "
                 f"outer iterations at step {self.nsteps}; reduce the timestep")
         self._lattice_at(qt, want_energy)
         if pending is not None:
@@ -399,23 +378,11 @@ class CollectivePRK(SpinLatticeDynamics):
         return self._spin_forces(operators, W, self._state.FL)
 
     def _blocks_possible(self):
-        return len(self.atoms) < threads.SERIAL_BELOW and fused._blocks(type(self))
+        return len(self.atoms) < threads.SERIAL_BELOW and fused.blocks_allowed(type(self))
 
     def _steps_at_once(self, steps):
         """Small systems: the steps as one compiled call (fused.collective_block)."""
         return fused.collective_block(self, steps)
-
-    def _settled_qtol(self, largest):
-        """How close q̃ of an outer round must come to the last round's for the
-        step to stand on the pair geometry prepared there: round-off of the
-        largest coordinate (``largest``), so that the step is the implicit map."""
-        return 4.0 * _EPS * max(1.0, largest)
-
-    def _settled_tol(self):
-        """How far W may move in an outer iteration for the kick and drift
-        computed from the W before it to stand: round-off (8 tol), so that
-        the step is the implicit map to the last digit (time-reversible)."""
-        return 8.0 * self.tol
 
     # -- the midpoint spins ------------------------------------------------------
 
@@ -446,41 +413,43 @@ class CollectivePRK(SpinLatticeDynamics):
     def _solve(self, s, operators, W, h, stage, mean=True, tol=None, first=True):
         """Midpoint spins for the midpoint fields of ``operators`` (B̄ =
         ½[B(q, W) + B(q̃, W)]; B(q, W) itself when ``mean`` is False: a frozen
-        lattice), to tolerance ``tol`` (default ``self.tol``). Returns (W, s̃,
+        lattice), to tolerance ``tol`` (default the policy's). Returns (W, s̃,
         sweeps, how far W moved from the starting guess, the rounding error of s̃).
         ``first``: the step's first solve (from the predictor), whose sweeps
-        "auto" chooses by kernels.auto_takes_local when it is to ``self.tol``."""
+        "auto" chooses by policy.auto_takes_local when it is to the policy's
+        tolerance. The solver's settings and its switch: policy.solver_settings."""
         st = self._state
-        tol = self.tol if tol is None else tol
-        chooses = first and tol <= self.tol  # (not a loose first solve, not a later one)
+        rules = st.policy
+        tol = rules.tol if tol is None else tol
+        chooses = first and tol <= rules.tol  # (not a loose first solve, not a later one)
         scale = self._scale(h)
         carry = np.zeros_like(s)
         stilde = np.zeros_like(s)
-        solver = self._solver
-        cheap = _AUTO_FIRST
-        if solver == "auto":
-            if chooses and not kernels.auto_takes_local(st.one_sweep[stage], st.theta[stage]):
-                cheap = "jacobi"
-            solver = st.modes.get((stage, h), cheap)
-        if solver == cheap and self._solver == "auto":
+        memory, local, sweeps, switch, adaptive = policy.solver_settings(
+            rules.solver, (stage, h) in st.modes, rules.max_iter)
+        if adaptive:
+            if chooses:
+                local = policy.auto_takes_local(st.one_sweep[stage], st.theta[stage])
             # cheap sweeps while they contract fast; the stiff case is retried below,
             # from the starting guess if they contracted slowly last time (a copy:
             # 24 bytes per atom at the step's peak memory), else from their last iterate
-            guess = W.copy() if st.theta[stage] > _KEEP_GUESS else None
+            guess = W.copy() if st.theta[stage] > policy.KEEP_GUESS else None
             its, delta, status, which, theta, moved = self._run_solver(
-                s, operators, W, h, stage, mean, scale, stilde, carry, tol, cheap,
-                min(self.max_iter, _AUTO_FIRST_SWEEPS))
-            if status != kernels.NOT_CONVERGED and not (its > 2 and theta > _AUTO_SWITCH):
+                s, operators, W, stage, mean, scale, stilde, carry, tol, memory, local, sweeps)
+            if (status != kernels.NOT_CONVERGED
+                    and not policy.gives_up(its, theta, switch)):
                 st.theta[stage] = theta if 0.0 <= theta < 1.0 else st.theta[stage]
                 if chooses:
                     st.one_sweep[stage] = its == 1
-                self._choose_order(stage, cheap, its, theta)
+                self._choose_order(stage, local, its, theta)
                 if which == 1:
                     W, st.Wnext = st.Wnext, W
                 return W, stilde, its, moved, carry
             st.one_sweep[stage] = False
             st.modes[(stage, h)] = "anderson"
             st.theta[stage] = 1.0
+            memory, local, sweeps, _, _ = policy.solver_settings(rules.solver, True,
+                                                                  rules.max_iter)
             if status == kernels.NOT_CONVERGED:
                 if guess is not None:
                     W = guess
@@ -488,14 +457,13 @@ class CollectivePRK(SpinLatticeDynamics):
                     W, st.Wnext = st.Wnext, W
                 spent = its
                 its, delta, status, which, theta, moved = self._run_solver(
-                    s, operators, W, h, stage, mean, scale, stilde, carry, tol, "anderson",
-                    self.max_iter)
+                    s, operators, W, stage, mean, scale, stilde, carry, tol, memory, local,
+                    sweeps)
                 its += spent
-            solver = None  # done
-        if solver is not None:
+        else:
             its, delta, status, which, theta, moved = self._run_solver(
-                s, operators, W, h, stage, mean, scale, stilde, carry, tol, solver, self.max_iter)
-        self._choose_order(stage, solver or "anderson", its, theta)
+                s, operators, W, stage, mean, scale, stilde, carry, tol, memory, local, sweeps)
+        self._choose_order(stage, local, its, theta)
         st.theta[stage] = theta if 0.0 <= theta < 1.0 else st.theta[stage]
         if which == 1:
             W, st.Wnext = st.Wnext, W
@@ -503,17 +471,17 @@ class CollectivePRK(SpinLatticeDynamics):
             self._raise_not_converged(operators, W, its, delta, scale, mean)
         return W, stilde, its, moved, carry
 
-    def _choose_order(self, stage, solver, sweeps, measured):
-        """After a solve at ``stage`` by ``solver`` (``sweeps`` sweeps, contraction
+    def _choose_order(self, stage, local, sweeps, measured):
+        """After a solve at ``stage`` (locally exact sweeps or not: ``local``; ``sweeps`` sweeps, contraction
         ``measured`` or −1): the order of that stage's next locally exact
-        sweeps (kernels.next_sweep_order; a frozen lattice, used with one spin
+        sweeps (policy.next_sweep_order; a frozen lattice, used with one spin
         operator of linear pairs; in a system of threaded size only on a
         lattice of :data:`THREADED_COLOURS` colours at most, see
         :meth:`_colour_pairs`)."""
         if self.frozen:
             st = self._state
-            st.sweep_order[stage], st.theta_index[stage] = kernels.next_sweep_order(
-                st.sweep_order[stage], SOLVERS[solver][1], sweeps, measured,
+            st.sweep_order[stage], st.theta_index[stage] = policy.next_sweep_order(
+                st.sweep_order[stage], local, sweeps, measured,
                 st.theta_index[stage])
 
     def _colour_pairs(self, operators, mean):
@@ -534,7 +502,7 @@ class CollectivePRK(SpinLatticeDynamics):
         colours = len(starts) - 1
         n = len(st.s)
         if n >= threads.SERIAL_BELOW and colours > THREADED_COLOURS:
-            st.sweep_order[:] = kernels.INDEX_ORDER_KEPT
+            st.sweep_order[:] = policy.INDEX_ORDER_KEPT
             st.full_ops = None
             st.colour_rows = None
             return None
@@ -571,17 +539,17 @@ class CollectivePRK(SpinLatticeDynamics):
             scale = st.scales[h] = (h * self.sigma / self.hbar) * st.rate
         return scale
 
-    def _run_solver(self, s, operators, W, h, stage, mean, scale, stilde, carry, tol, solver,
-                    max_iter):
-        """One call of the midpoint kernels with solver ``solver`` (see :meth:`_solve`)."""
+    def _run_solver(self, s, operators, W, stage, mean, scale, stilde, carry, tol, memory,
+                    local, max_iter):
+        """One call of the midpoint kernels: Anderson ``memory``, locally exact
+        sweeps or not (``local``), at most ``max_iter`` sweeps (see :meth:`_solve`)."""
         st = self._state
-        memory, local = SOLVERS[solver]
-        args = (s, W, st.Wnext, stilde, scale, tol, 64.0 * self.tol, max_iter,
-                min(1.0, 2.0 * st.theta[stage]), st.carry_s, carry)
+        args = (s, W, st.Wnext, stilde, scale, tol, st.policy.floor, max_iter,
+                policy.start_contraction(st.theta[stage]), st.carry_s, carry)
         if len(operators) == 1 and hasattr(operators[0], "linear_pairs"):
             # B̄_i = Σ_j c_ij W_j: the whole iteration in one compiled loop
             coloured = None
-            if local and st.sweep_order[stage] == kernels.COLOUR_ORDER:  # (frozen)
+            if local and st.sweep_order[stage] == policy.COLOUR_ORDER:  # (frozen)
                 coloured = self._colour_pairs(operators, mean)
             # the midpoint fields where asked for, else an empty array (not
             # None: one compiled specialisation for both kinds of caller)

@@ -31,13 +31,10 @@ import numpy as np
 from .._jit import threads
 from .._jit.cloning import compile_with
 from ..neighbors import all_finite, largest_displacements
-from . import kernels
+from . import kernels, policy
 
 __all__ = ["collective_block", "collective_step", "step_function"]
 
-_EPS = float(np.finfo(float).eps)
-#: Outer iterations (q̃ and W settling) allowed, as in CollectivePRK.
-MAX_OUTER = 12
 _DONE, _GIVE_UP = 0, 1
 
 
@@ -58,13 +55,13 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     ``fine_radius`` from ``fine_reference``, where the pair list and the
     sub-lists hold: NeighborCache; separate arguments, not tuples of arrays,
     which cost the block of steps 5 %). The first solve stops at
-    ``first_tol``, the others at ``tol`` (collective.first_tolerance).
+    ``first_tol``, the others at ``tol`` (policy.first_tolerance).
     ``memory``, ``local``: the midpoint solver (kernels.midpoint_solve_half);
     a solve contracting by more than ``switch`` per sweep also gives up, so
     that CollectivePRK's ``solver="auto"`` makes its switch on the general path;
     with ``adaptive`` (auto's first mode) the step's first solve, if to
     ``tol``, chooses its sweeps from ``one_sweep`` (whether the stage's last
-    such solve took one) and θ (kernels.auto_takes_local), and the updated
+    such solve took one) and θ (policy.auto_takes_local), and the updated
     ``one_sweep`` is returned (last but one).
     With ``predict``, W is not read but predicted here as CollectivePRK._predict
     does (normalise(s + Σ c_m D_m), coefficients ``coef`` over the increments
@@ -100,7 +97,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
     pending = False  # the end forces begun in this round's pass
     keep = np.empty((0, 0, 6))
     settled_in = -1
-    for rnd in range(MAX_OUTER):
+    for rnd in range(policy.MAX_ROUNDS):
         F = FL.copy()
         if merge and solved and rnd == settled_round:
             keep = spin_forces_two(W, op_q, op_t, F)  # noqa: F821 - bound per combination
@@ -117,7 +114,7 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
             if not moved <= radius:
                 return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
                         one_sweep, settled_round)
-            qtol = max(4.0 * _EPS * max(1.0, largest), qtol_floor)
+            qtol = policy.settled_qtol(largest, qtol_floor)
             first = False
         elif apart <= qtol:
             if not loose:
@@ -142,11 +139,11 @@ def _step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, sca
         # the step's first solve, to tol (not a loose one, not a later one)
         chooses = adaptive and solves == 0 and not use_tol > tol
         if chooses:
-            use_local = kernels.auto_takes_local(one_sweep, theta)
+            use_local = policy.auto_takes_local(one_sweep, theta)
         its, delta, status, which, measured, moved_w = solve_half(  # noqa: F821
             1, row, nbr, c, s, W, Wnext, stilde, scale, use_tol, floor, max_iter,
-            min(1.0, 2.0 * theta), carry_s, carry, memory, use_local, field)
-        if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch):
+            policy.start_contraction(theta), carry_s, carry, memory, use_local, field)
+        if status == kernels.NOT_CONVERGED or policy.gives_up(its, measured, switch):
             return (_GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
                     one_sweep, settled_round)
         if 0.0 <= measured < 1.0:  # observed (−1: none was)
@@ -214,7 +211,7 @@ def _history(ring, stage, head, count):
 
 
 def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, carry_mid,
-         Wnext, tol, fraction, floor, max_iter, theta, settle, memory, local, switch,
+         Wnext, tol, fraction, loosest, floor, max_iter, theta, settle, memory, local, switch,
          adaptive, one_sweep, orders, ring, counts, heads, probe, kept, kept_n, lattice, op_q, op_t, reference,
          radius, fine_reference, fine_radius, settled_tol, qtol_floor, coefficients, merge,
          rounds):
@@ -262,7 +259,7 @@ def _run(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry_s, c
         for stage in range(nstages):
             head, count = heads[stage], counts[stage]
             hs = _history(ring, stage, head, count)
-            first_tol = min(1e-6, max(tol, fraction * settle[stage]))
+            first_tol = policy.first_tolerance(tol, settle[stage], fraction, loosest)
             (status, qt, P, s_new, cq, cs, FLt, W, Wn, th, its, geos, order, moved,
              increment, single, rnd) = fused_step(  # noqa: F821 - bound per combination
                 q, p, s, FL, m, gammas[stage] * dt, carry_q, carry_p, carry_s, carry_mid,
@@ -330,7 +327,7 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
     order ``order`` (neighbors.rows_in_order), the colours' boundaries
     ``starts``);
     ``sweep_order`` and ``theta_index`` kept by
-    kernels.next_sweep_order). Steps are taken whole or not at all;
+    policy.next_sweep_order). Steps are taken whole or not at all;
     a solve that fails or contracts by more than ``switch`` per sweep, or a
     stage to be coloured without a full list given (empty ``order``), stops
     the block before its step. Returns (steps done, s, carry of s, the spare W
@@ -362,28 +359,29 @@ def _run_frozen(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, max_it
             carry = np.zeros_like(s)
             use_local = local[stage]
             if adaptive[stage]:
-                use_local = kernels.auto_takes_local(one_sweep[stage], theta[stage])
-            if use_local and sweep_order[stage] == kernels.COLOUR_ORDER:
+                use_local = policy.auto_takes_local(one_sweep[stage], theta[stage])
+            if use_local and sweep_order[stage] == policy.COLOUR_ORDER:
                 if len(order) == 0:  # no full list here: the general path makes it
                     failed = True
                     break
                 its, delta, status, which, measured, moved = solve_full(  # noqa: F821
                     1, full_row, full_nbr, full_c, s, W, Wnext, stilde, scales[stage], tol,
-                    floor, max_iter[stage], min(1.0, 2.0 * theta[stage]), carry_s, carry,
+                    floor, max_iter[stage], policy.start_contraction(theta[stage]), carry_s,
+                    carry,
                     memory[stage], use_local, no_field, order, starts)
             else:
                 its, delta, status, which, measured, moved = solve(  # noqa: F821
                     1, row, nbr, c, s, W, Wnext, stilde, scales[stage], tol, floor,
-                    max_iter[stage], min(1.0, 2.0 * theta[stage]), carry_s, carry,
+                    max_iter[stage], policy.start_contraction(theta[stage]), carry_s, carry,
                     memory[stage], use_local, no_field)
-            if status == kernels.NOT_CONVERGED or (its > 2 and measured > switch[stage]):
+            if status == kernels.NOT_CONVERGED or policy.gives_up(its, measured, switch[stage]):
                 failed = True
                 break
             if 0.0 <= measured < 1.0:
                 new_theta[stage] = measured
             if adaptive[stage]:
                 new_one_sweep[stage] = its == 1
-            new_sweep_order[stage], new_theta_index[stage] = kernels.next_sweep_order(
+            new_sweep_order[stage], new_theta_index[stage] = policy.next_sweep_order(
                 sweep_order[stage], use_local, its, measured, theta_index[stage])
             if which == 1:
                 W, Wnext = Wnext, W
@@ -489,47 +487,7 @@ def _lattice_pieces(ev):
     return fn, data
 
 
-#: What the fused step does in place of these methods: a subclass that
-#: overrides one of them keeps the general path (its _predict and
-#: _remember_midpoint are called as they are).
-_REPLACED = ("_spin_forces", "_md_forces", "_kick_drift", "_drift", "_check_moved",
-             "_lattice_at", "_solve", "_adjust_momenta")
-#: The predictor, done inside the fused step unless a subclass overrides one of these.
-_PREDICTOR = ("_predict", "_remember_midpoint")
-_plain_classes = {}
-_own_predictor = {}
-
-
-def _predicts(cls):
-    own = _own_predictor.get(cls)
-    if own is None:
-        from .collective import CollectivePRK
-
-        own = _own_predictor[cls] = all(getattr(cls, name) is getattr(CollectivePRK, name)
-                                        for name in _PREDICTOR)
-    return own
-
-
-def _plain(cls):
-    plain = _plain_classes.get(cls)
-    if plain is None:
-        from .collective import CollectivePRK
-
-        plain = _plain_classes[cls] = all(getattr(cls, name) is getattr(CollectivePRK, name)
-                                          for name in _REPLACED)
-    return plain
-
-
 _UNSEEN = object()
-_collective = None
-
-
-def _import_collective():
-    global _collective
-    from . import collective  # (it imports this module)
-
-    _collective = collective
-    return collective
 
 
 #: Steps a run must still have ahead for a system of 64–1 500 atoms to compile its
@@ -569,7 +527,7 @@ def _pieces(dyn):
     if (not threads.small() or st.ops_next is None or len(st.ops) != 1
             or ev.neighbors is None or dyn.atoms.constraints or not dyn.half_lists):
         return None
-    if not _plain(type(dyn)):
+    if not type(dyn).compiled_step:
         return None
     op_q, op_t = st.ops[0], st.ops_next[0]
     token = ev.state_token
@@ -614,20 +572,12 @@ def _validity(ev):
 def _solver_settings(dyn, stage, h):
     """(Anderson memory, locally exact sweep, sweeps allowed, contraction per
     sweep above which to give up, whether each solve chooses its sweeps by
-    kernels.auto_takes_local) of a stage's midpoint solves, as
-    CollectivePRK._solve chooses: with ``"auto"``, its first mode until it
-    contracts slowly (then the general path makes the switch)."""
-    collective = _collective or _import_collective()
-    solver, max_iter, switch, adaptive = dyn._solver, dyn.max_iter, np.inf, False
-    if solver == "auto":
-        first = collective._AUTO_FIRST
-        solver = dyn._state.modes.get((stage, h), first)
-        if solver == first:
-            max_iter = min(max_iter, collective._AUTO_FIRST_SWEEPS)
-            switch = collective._AUTO_SWITCH
-            adaptive = True
-    memory, local = collective.SOLVERS[solver]
-    return memory, local, max_iter, switch, adaptive
+    policy.auto_takes_local) of a stage's midpoint solves: policy.solver_settings,
+    as CollectivePRK._solve takes them (with "auto", its first mode until it
+    contracts slowly: then the general path makes the switch)."""
+    st = dyn._state
+    return policy.solver_settings(st.policy.solver, (stage, h) in st.modes,
+                                  st.policy.max_iter)
 
 
 def collective_step(dyn, h, stage):
@@ -644,13 +594,13 @@ def collective_step(dyn, h, stage):
     st = dyn._state
     ev = dyn.ev
     scale = dyn._scale(h)
-    collective = _collective or _import_collective()
+    rules = st.policy
     memory, local, max_iter, switch, adaptive = _solver_settings(dyn, stage, h)
     # the midpoint fields, where asked for (else into the same buffer, unread:
     # one compiled specialisation of the step)
     field = st.field_out if st.field_out is not None else dyn._midpoint_field_buffer()
     history = st.history[stage]
-    predict = bool(history) and _predicts(type(dyn))
+    predict = bool(history) and type(dyn).compiled_predictor
     if predict:  # CollectivePRK._predict, inside the step
         hs = kernels.newest_first(history)
         n_history = len(history)
@@ -664,11 +614,13 @@ def collective_step(dyn, h, stage):
     (status, qt, P, s_new, carry_q, carry_s, FL, W, Wnext, theta, iterations,
      geometries, order, settle, increment, one_sweep, settled_in) = step(st.q, st.p, st.s, st.FL, dyn.masses[:, 0], h,
                                        st.carry_q, st.carry_p, st.carry_s, st.carry_mid, W,
-                                       st.Wnext, scale, dyn.tol,
-                                       collective.first_tolerance(dyn.tol, st.settle[stage]),
-                                       64.0 * dyn.tol, max_iter, st.theta[stage], lattice_data,
+                                       st.Wnext, scale, rules.tol,
+                                       policy.first_tolerance(rules.tol, st.settle[stage],
+                                                              rules.first_fraction,
+                                                              rules.first_loosest),
+                                       rules.floor, max_iter, st.theta[stage], lattice_data,
                                        data_q, data_t, *_validity(ev),
-                                       dyn._settled_tol(), dyn._settled_qtol(0.0), memory,
+                                       rules.settled_tol, rules.qtol_floor, memory,
                                        local, switch, adaptive, bool(st.one_sweep[stage]),
                                        predict, coef, hs, n_history,
                                        st.probe, st.kept[stage], st.kept_n[stage:stage + 1],
@@ -708,23 +660,11 @@ def _runner(step):
     return fn
 
 
-#: Methods a subclass must not override for its steps to be taken in blocks:
-#: :meth:`SpinLatticeDynamics._step` around every stage's ``_substep``.
-_STEPPING = ("_step", "_substep", "_coupled_step", "_commit", "_observer_due")
-_block_classes = {}
-
-
-def _blocks(cls):
-    ok = _block_classes.get(cls)
-    if ok is None:
-        from .base import SpinLatticeDynamics
-        from .collective import CollectivePRK
-
-        ok = _block_classes[cls] = (
-            _plain(cls) and _predicts(cls)
-            and all(getattr(cls, name) is getattr(CollectivePRK, name) for name in _STEPPING)
-            and CollectivePRK._step is SpinLatticeDynamics._step)
-    return ok
+def blocks_allowed(cls):
+    """Whether steps of integrator class ``cls`` may be taken in blocks: it
+    declares its coupled step, its predictor and runs of its steps compiled
+    (CollectivePRK.compiled_step, compiled_predictor, compiled_blocks)."""
+    return cls.compiled_step and cls.compiled_predictor and cls.compiled_blocks
 
 
 def _stage_arrays(dyn):
@@ -781,10 +721,11 @@ def collective_block(dyn, steps):
     done, sweeps in all, sweeps and geometries of the last step); 0 steps:
     nothing changed, take the general path."""
     st = dyn._state
-    if not _blocks(type(dyn)) or not dyn.magnetic or not threads.small():
+    if not blocks_allowed(type(dyn)) or not dyn.magnetic or not threads.small():
         return 0, 0, 0, 0
     if not all(st.history):
         return 0, 0, 0, 0
+    st.policy = dyn.step_policy()
     if dyn.frozen:
         return _frozen_block(dyn, steps)
     got = _pieces(dyn)
@@ -797,7 +738,7 @@ def collective_block(dyn, steps):
     if not (_pays(dyn, step) and _pays(dyn, run)):
         return 0, 0, 0, 0
     ev = dyn.ev
-    collective = _collective or _import_collective()
+    rules = st.policy
     gammas, scales, memory, local, max_iter, switch, adaptive = _stage_arrays(dyn)
     ring, counts, heads = _history_ring(st)
     theta = np.array(st.theta, dtype=float)
@@ -807,13 +748,13 @@ def collective_block(dyn, steps):
     (done, failed, q, p, s, FL, carry_q, carry_s, Wnext, swapped, sweeps, last_sweeps,
      last_geometries) = run(steps, st.q, st.p, st.s, st.FL, dyn.masses[:, 0], dyn.dt, gammas,
                             scales, st.carry_q, st.carry_p, st.carry_s, st.carry_mid,
-                            st.Wnext, dyn.tol, collective.FIRST_SOLVE_FRACTION,
-                            64.0 * dyn.tol, max_iter, theta, settle, memory, local, switch,
+                            st.Wnext, rules.tol, rules.first_fraction, rules.first_loosest,
+                            rules.floor, max_iter, theta, settle, memory, local, switch,
                             adaptive, st.one_sweep, orders, ring, counts, heads, st.probe, st.kept, st.kept_n,
                             lattice_data,
                             data_q,
                             data_t, *_validity(ev),
-                            dyn._settled_tol(), dyn._settled_qtol(0.0),
+                            rules.settled_tol, rules.qtol_floor,
                             kernels.COEFFICIENTS, merge, rounds)
     if done:
         st.q, st.p, st.s, st.FL = q, p, s, FL
@@ -873,7 +814,7 @@ def _frozen_block(dyn, steps):
     theta = np.array(st.theta, dtype=float)
     orders = np.array(st.predictor_order, dtype=np.int64)
     done, s, carry_s, Wnext, sweeps, last_sweeps = run(
-        steps, st.s, dyn.dt, gammas, scales, st.carry_s, st.Wnext, dyn.tol, 64.0 * dyn.tol,
+        steps, st.s, dyn.dt, gammas, scales, st.carry_s, st.Wnext, st.policy.tol, st.policy.floor,
         max_iter, theta, memory, local, switch, adaptive, st.one_sweep, orders, ring, counts,
         heads, st.probe, st.kept, st.kept_n, pairs.row, pairs.j, c, kernels.COEFFICIENTS,
         st.sweep_order, st.theta_index, full_row, full_nbr, full_c, order, starts)

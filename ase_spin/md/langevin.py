@@ -57,9 +57,9 @@ _MEAN_SLOPE = np.array([[1.0, 0.0, 0.0, 0.0],
                         [2.0, -1.0, 0.0, 0.0],
                         [1.5, 0.0, -0.5, 0.0],
                         [4.0 / 3.0, 0.0, 0.0, -1.0 / 3.0]])
-#: Outer-iteration settling tolerance with a bath on (see Langevin._settled_tol).
+#: Outer-iteration settling tolerance with a bath on (see Langevin.step_policy).
 _SETTLED = 1e-12
-#: and of q̃ (Å), see Langevin._settled_qtol
+#: and of q̃ (Å), see Langevin.step_policy
 _SETTLED_Q = 1e-10
 
 
@@ -553,6 +553,11 @@ class Langevin(CollectivePRK):
         in (Ebath) and the conserved Etot − Ebath: :class:`LangevinLogger`.
     """
 
+    # its own midpoint predictor (_predict, _remember_midpoint) and its baths
+    # between steps: the compiled executor takes its coupled step alone
+    compiled_predictor = False
+    compiled_blocks = False
+
     def __init__(self, atoms, timestep, temperature_K, *, spin_damping, friction,
                  spin_temperature_K=None, hbar=None, precession="moment",
                  gyromagnetic="lammps", order=2, fixcm=True, rng=None, trajectory=None,
@@ -772,23 +777,21 @@ class Langevin(CollectivePRK):
         if len(pending) > 1:  # the keys drawn for a bath begun too early: not drawn
             self.rng.bit_generator.state = pending[1][3]
 
-    def _settled_tol(self):
-        """With a bath on, the step is not reversible and moves each spin by
-        random angles of order √(2Dh) (≥ 1e-6 in any run worth a bath): a kick
-        computed from a midpoint off by 1e-12 stands. CollectivePRK's 8 tol
-        (round-off) cost a third outer iteration in most steps, the noise
-        leaving the midpoint predictor ~3e-5 off (docs/benchmarks.md)."""
+    def step_policy(self):
+        """CollectivePRK's, except with a bath on: then the step is not
+        reversible and moves each spin by random angles of order √(2Dh) (≥ 1e-6
+        in any run worth a bath), so a kick computed from a midpoint off by
+        1e-12 stands (W settled to :data:`_SETTLED` instead of round-off, which
+        cost a third outer iteration in most steps: the noise leaves the
+        predictor far off), and q̃ within :data:`_SETTLED_Q` Å of the round
+        before stands on the geometry prepared there (couplings off by
+        ~J'·1e-10 eV, far below the noise: one geometry per step, where
+        round-off took two)."""
+        rules = super().step_policy()
         if self._spin_bath_on() or self.fr > 0.0:
-            return max(super()._settled_tol(), _SETTLED)
-        return super()._settled_tol()
-
-    def _settled_qtol(self, largest):
-        """With a bath on, q̃ within 1e-10 Å of the round before stands on the
-        geometry prepared there (couplings off by ~J'·1e-10 eV, far below the
-        noise): one geometry per step, where round-off took two."""
-        if self._spin_bath_on() or self.fr > 0.0:
-            return max(super()._settled_qtol(largest), _SETTLED_Q)
-        return super()._settled_qtol(largest)
+            return rules._replace(settled_tol=max(rules.settled_tol, _SETTLED),
+                                  qtol_floor=_SETTLED_Q)
+        return rules
 
     def _noisy(self):
         """Does a bath with T > 0 act (the default ``tol`` is then NOISY_TOL)?"""

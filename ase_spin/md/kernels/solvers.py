@@ -1,0 +1,429 @@
+"""The midpoint solvers: W of the spherical midpoint rule,
+W = normalise(s + s̃), s̃ = s + c W × B̄(W), solved by Jacobi or locally exact
+sweeps with optional Anderson acceleration, over one linear pair operator
+(B̄_i = Σ_j c_ij W_j, in one compiled loop) or any spin operators."""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from ..._jit import threads
+from ..._jit.reductions import balanced_chunks, reduce_threads, reduce_threads_serial
+from ..._jit.threads import threaded
+from .anderson import after_sweep, anderson_mix, anderson_mix_serial
+from .midpoint import (MEMORY, NOT_CONVERGED, coloured_spins, coloured_sweep, end_points_of_rows,
+                       local_midpoint_direction, pair_field_row, update_row)
+
+#: ``field`` of the midpoint solvers when no midpoint fields are wanted: an
+#: empty array rather than None, so that callers that want them (the fused
+#: step, Langevin) and callers that do not share one compiled specialisation.
+NO_FIELD = np.zeros((0, 3))
+
+
+@threaded(anderson_mix=lambda: anderson_mix_serial)
+def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
+                   theta0, carry, carry_out, memory=MEMORY, local=True, field=None,
+                   order=None, starts=None):
+    r"""Solve the spherical-midpoint equation for fixed pair couplings J̄_ij:
+
+    .. math::
+
+        \tilde{\mathbf s}_i = \mathbf s_i + c\, \mathbf W_i \times \bar{\mathbf B}_i,
+        \qquad \bar{\mathbf B}_i = \sum_j \bar J_{ij} \mathbf W_j, \qquad
+        \mathbf W_i = \frac{\mathbf s_i + \tilde{\mathbf s}_i}{|\mathbf s_i + \tilde{\mathbf s}_i|},
+
+    with c = hσ/ħ (per spin: ``scale`` holds c_i, which carries each spin's
+    precession rate factor). Each sweep maps the iterate W to g(W): with
+    ``local`` (the default), every spin's own equation solved exactly in the
+    field of the others, B̄_i(W) held fixed (:func:`local_midpoint`, a Cayley
+    rotation about B̄_i; contracts for every step size where the plain
+    iteration may not; the end points made once, after the last sweep:
+    :func:`end_points_of_rows`). With a colour order (``order``: the atoms colour by
+    colour, no two of one colour paired; neighbors.greedy_colouring) the
+    locally exact sweep takes the colours in turn (Gauss–Seidel order), spin i
+    of colour c in the field
+
+    .. math:: \bar{\mathbf B}_i = \sum_{j:\, c_j < c} \bar J_{ij} g(W)_j
+              + \sum_{j:\, c_j > c} \bar J_{ij} \mathbf W_j,
+
+    which contracts about as fast as two sweeps in index order (the error is
+    squared on a two-colourable lattice); the spins of one colour are
+    independent, so they are solved side by side. With ``order`` the rows of
+    ``row``, ``nbr`` and ``Jbar`` are taken in that order (row a belongs to
+    spin ``order[a]``: neighbors.rows_in_order), so that each colour's rows
+    are read as one stretch of memory. With ``starts`` (colour c
+    is ``order[starts[c]:starts[c + 1]]``) and more than one chunk, each colour
+    in a parallel region of its own, its spins split evenly among the chunks;
+    else in one serial pass (:func:`coloured_sweep`). Either way each spin
+    sees the same values, so the bits do not depend on the chunks. Else the
+    Jacobi map g(W) = (2 s + c W × B̄(W)) /
+    |2 s + c W × B̄(W)|, which contracts only while c|B̄| ≲ 1. With ``memory``
+    m > 0, the next iterate is the Anderson combination of the last m + 1
+    sweeps (:func:`anderson_mix`); else g(W). Rows with s_i = 0 (non-magnetic atoms) are skipped.
+
+    ``W`` holds the starting guess; ``Wnext`` is a buffer of the same shape (zero
+    on non-magnetic rows). ``stilde`` receives the end point of the last sweep,
+    s + c W × B̄ written as the reflection of s about the midpoint direction (see
+    :func:`update_row`): |s̃| = |s| to round-off, never renormalised. The
+    sum is compensated (Kahan): ``carry`` holds the rounding error of the
+    previous step's update, added back here, and ``carry_out`` receives this
+    one's.
+
+    Stops when the distance to the solution, bounded by θ/(1−θ)·max|ΔW| with θ
+    the observed contraction per sweep (``theta0``, from earlier solves, until
+    two sweeps have been made), is at most ``tol``; or when the change has
+    stopped falling below ``floor`` (round-off reached). Returns (iterations,
+    last max|ΔW|, status, index of the buffer holding the result: 0 = W,
+    1 = Wnext, contraction θ observed, or −1 if none was, max|ΔW| of the
+    first sweep: how far the starting guess was from the result). ``field``,
+    if given and not empty (:data:`NO_FIELD`), receives the midpoint fields B̄_i
+    of the last sweep's input iterate (magnetic rows; the others are not
+    written).
+    """
+    n = len(row) - 1
+    bounds = balanced_chunks(row, nthreads)
+    change = np.zeros(nthreads)
+    dF = np.empty((memory, n, 3))
+    dG = np.empty((memory, n, 3))
+    fprev = np.empty((n if memory > 0 else 0, 3))
+    gprev = np.empty((n if memory > 0 else 0, 3))
+    gram = np.zeros((memory, memory))
+    jacobi_rows = np.zeros(n if local else 0, dtype=np.bool_)
+    cur = W
+    nxt = Wnext
+    which = 1  # the buffer nxt is: 0 = W, 1 = Wnext
+    previous = np.inf
+    theta = theta0
+    measured = -1.0
+    delta = 0.0
+    first = 0.0
+    status = -1
+    it = 0
+    if order is None:
+        by_colour = np.empty(0, dtype=np.int64)
+    else:
+        by_colour = order
+    coloured = local and len(by_colour) > 0
+    if starts is None:
+        colour_starts = np.zeros(0, dtype=np.int64)
+    else:
+        colour_starts = starts
+    threaded_colours = coloured and nthreads > 1 and len(colour_starts) > 1
+    for it in range(1, max_iter + 1):
+        if threaded_colours:
+            for t in nb.prange(nthreads):
+                for i in range((n * t) // nthreads, (n * (t + 1)) // nthreads):
+                    nxt[i, 0] = cur[i, 0]
+                    nxt[i, 1] = cur[i, 1]
+                    nxt[i, 2] = cur[i, 2]
+                change[t] = 0.0
+            for col in range(len(colour_starts) - 1):
+                lo = colour_starts[col]
+                size = colour_starts[col + 1] - lo
+                for t in nb.prange(nthreads):
+                    d = coloured_spins(lo + (size * t) // nthreads,
+                                        lo + (size * (t + 1)) // nthreads, row, nbr, Jbar, s,
+                                        cur, nxt, scale, stilde, carry, carry_out, jacobi_rows,
+                                        field, by_colour)
+                    if not d <= change[t] and change[t] == change[t]:  # (NaN stays)
+                        change[t] = d
+        elif coloured:
+            change[:] = 0.0
+            change[0] = coloured_sweep(row, nbr, Jbar, s, cur, nxt, scale, stilde, carry,
+                                        carry_out, jacobi_rows, field, by_colour)
+        else:
+            for t in nb.prange(nthreads):
+                m = 0.0
+                for i in range(bounds[t], bounds[t + 1]):
+                    if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+                        continue
+                    bx, by, bz = pair_field_row(i, row, nbr, Jbar, cur)
+                    if field is not None and field.shape[0] > 0:
+                        field[i, 0] = bx
+                        field[i, 1] = by
+                        field[i, 2] = bz
+                    if local:
+                        d = local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale,
+                                                      stilde, carry, carry_out, jacobi_rows)
+                    else:
+                        d = update_row(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
+                                             carry_out)
+                    if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
+                        m = d
+                change[t] = m
+        delta = change.max()
+        status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
+                                                      first, tol, floor)
+        if status >= 0:
+            break
+        previous = delta
+        if memory > 0:
+            anderson_mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
+        else:
+            cur, nxt = nxt, cur
+            which = 1 - which
+    if local:
+        for t in nb.prange(nthreads):
+            end_points_of_rows(bounds[t], bounds[t + 1], s, nxt, stilde, carry, carry_out,
+                        jacobi_rows)
+    if status < 0:
+        return max_iter, delta, NOT_CONVERGED, which, measured, first
+    return it, delta, status, which, measured, first
+
+
+@threaded(anderson_mix=lambda: anderson_mix_serial)
+def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor,
+                        max_iter, theta0, carry, carry_out, memory=MEMORY, local=True,
+                        field=None):
+    """:func:`midpoint_solve` over a half pair list (each pair once, half the
+    memory traffic): each sweep scatters J̄_ij W_j into row i and J̄_ij W_i into
+    row j of per-thread buffers, then updates every spin from their sum (so
+    in index order only: no row has its whole field before the pass ends)."""
+    n = len(row) - 1
+    bounds = balanced_chunks(row, nthreads)
+    atoms = np.empty(nthreads + 1, dtype=np.int64)
+    for t in range(nthreads + 1):
+        atoms[t] = (n * t) // nthreads
+    buf = np.zeros((nthreads, n, 3))
+    change = np.zeros(nthreads)
+    dF = np.empty((memory, n, 3))
+    dG = np.empty((memory, n, 3))
+    fprev = np.empty((n if memory > 0 else 0, 3))
+    gprev = np.empty((n if memory > 0 else 0, 3))
+    gram = np.zeros((memory, memory))
+    jacobi_rows = np.zeros(n if local else 0, dtype=np.bool_)
+    cur = W
+    nxt = Wnext
+    which = 1  # the buffer nxt is: 0 = W, 1 = Wnext
+    previous = np.inf
+    theta = theta0
+    measured = -1.0
+    delta = 0.0
+    first = 0.0
+    status = -1
+    it = 0
+    for it in range(1, max_iter + 1):
+        for t in nb.prange(nthreads):
+            for i in range(bounds[t], bounds[t + 1]):
+                wx = cur[i, 0]
+                wy = cur[i, 1]
+                wz = cur[i, 2]
+                bx = 0.0
+                by = 0.0
+                bz = 0.0
+                for k in range(row[i], row[i + 1]):
+                    j = nbr[k]
+                    Jk = Jbar[k]
+                    bx += Jk * cur[j, 0]
+                    by += Jk * cur[j, 1]
+                    bz += Jk * cur[j, 2]
+                    buf[t, j, 0] += Jk * wx
+                    buf[t, j, 1] += Jk * wy
+                    buf[t, j, 2] += Jk * wz
+                buf[t, i, 0] += bx
+                buf[t, i, 1] += by
+                buf[t, i, 2] += bz
+        for t in nb.prange(nthreads):
+            m = 0.0
+            for i in range(atoms[t], atoms[t + 1]):
+                bx = 0.0
+                by = 0.0
+                bz = 0.0
+                for u in range(nthreads):
+                    bx += buf[u, i, 0]
+                    by += buf[u, i, 1]
+                    bz += buf[u, i, 2]
+                    buf[u, i, 0] = 0.0
+                    buf[u, i, 1] = 0.0
+                    buf[u, i, 2] = 0.0
+                if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+                    continue
+                if field is not None and field.shape[0] > 0:
+                    field[i, 0] = bx
+                    field[i, 1] = by
+                    field[i, 2] = bz
+                if local:
+                    d = local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde,
+                                                  carry, carry_out, jacobi_rows)
+                else:
+                    d = update_row(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
+                                         carry_out)
+                if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
+                    m = d
+            change[t] = m
+        delta = change.max()
+        status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
+                                                      first, tol, floor)
+        if status >= 0:
+            break
+        previous = delta
+        if memory > 0:
+            anderson_mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
+        else:
+            cur, nxt = nxt, cur
+            which = 1 - which
+    if local:
+        for t in nb.prange(nthreads):
+            end_points_of_rows(atoms[t], atoms[t + 1], s, nxt, stilde, carry, carry_out,
+                        jacobi_rows)
+    if status < 0:
+        return max_iter, delta, NOT_CONVERGED, which, measured, first
+    return it, delta, status, which, measured, first
+
+
+@threaded()
+def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, local,
+                    jacobi_rows):
+    """One sweep of the midpoint iteration for given midpoint fields B̄ = ``B``
+    (the sum of every spin operator's field at W): the locally exact update of
+    :func:`local_midpoint_direction` (``local``; the end points are left to
+    :func:`end_points` after the last sweep, the rows it leaves to the Jacobi
+    update marked in ``jacobi_rows``) or the Jacobi update of
+    :func:`update_row` for every magnetic spin (rows with s_i = 0 are
+    skipped), W → ``Wnext``. Returns max |ΔW| over all components."""
+    n = s.shape[0]
+    change = np.zeros(nthreads)
+    for t in nb.prange(nthreads):
+        m = 0.0
+        for i in range((n * t) // nthreads, (n * (t + 1)) // nthreads):
+            if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+                continue
+            if local:
+                d = local_midpoint_direction(i, s, W, Wnext, B[i, 0], B[i, 1], B[i, 2], scale,
+                                              stilde, carry, carry_out, jacobi_rows)
+            else:
+                d = update_row(i, s, W, Wnext, B[i, 0], B[i, 1], B[i, 2], scale, stilde,
+                                     carry, carry_out)
+            if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
+                m = d
+        change[t] = m
+    return change.max()
+
+
+@threaded()
+def end_points(nthreads, s, W, stilde, carry, carry_out, jacobi_rows):
+    """The end points after the last of :func:`midpoint_update`'s locally exact
+    sweeps (:func:`end_points_of_rows`: W their result)."""
+    n = s.shape[0]
+    for t in nb.prange(nthreads):
+        end_points_of_rows((n * t) // nthreads, (n * (t + 1)) // nthreads, s, W, stilde, carry,
+                    carry_out, jacobi_rows)
+
+
+@threaded(reduce_threads=lambda: reduce_threads_serial)
+def linear_field_and_form(nthreads, row, nbr, c, half, u, y, x, out):
+    """One pass over the pairs of a term in the ``linear_pairs`` form (B = C x,
+    B_i = Σ_j c_k x_j over k = (i → j), C symmetric): out += C u, and returns
+    the forms (d·C d, x·C d) = Σ_i Σ_j c_k (d_i·d_j, x_i·d_j) of the move
+    d = y − x (formed per row: one (n, 3) array fewer to write and read). A
+    half list holds each pair once: scattered into row j too, each pair's
+    terms taken both ways; per-thread buffers and sums added in thread order."""
+    n = len(row) - 1
+    bounds = balanced_chunks(row, nthreads)
+    buf = np.zeros((nthreads, n if half else 0, 3))
+    form = np.zeros((nthreads, 2))
+    twice = 2.0 if half else 1.0
+    for t in nb.prange(nthreads):
+        acc = 0.0
+        cross = 0.0
+        for i in range(bounds[t], bounds[t + 1]):
+            ux = u[i, 0]
+            uy = u[i, 1]
+            uz = u[i, 2]
+            # row sums Σ_j c_k (u_j, d_j, x_j): the forms from them, per row
+            fx = fy = fz = 0.0
+            ax = ay = az = 0.0
+            bx = by = bz = 0.0
+            for k in range(row[i], row[i + 1]):
+                j = nbr[k]
+                ck = c[k]
+                fx += ck * u[j, 0]
+                fy += ck * u[j, 1]
+                fz += ck * u[j, 2]
+                xj0 = x[j, 0]
+                xj1 = x[j, 1]
+                xj2 = x[j, 2]
+                ax += ck * (y[j, 0] - xj0)
+                ay += ck * (y[j, 1] - xj1)
+                az += ck * (y[j, 2] - xj2)
+                if half:
+                    bx += ck * xj0
+                    by += ck * xj1
+                    bz += ck * xj2
+                    buf[t, j, 0] += ck * ux
+                    buf[t, j, 1] += ck * uy
+                    buf[t, j, 2] += ck * uz
+            dx = y[i, 0] - x[i, 0]
+            dy = y[i, 1] - x[i, 1]
+            dz = y[i, 2] - x[i, 2]
+            acc += twice * (dx * ax + dy * ay + dz * az)
+            cross += x[i, 0] * ax + x[i, 1] * ay + x[i, 2] * az
+            if half:
+                cross += dx * bx + dy * by + dz * bz
+                buf[t, i, 0] += fx
+                buf[t, i, 1] += fy
+                buf[t, i, 2] += fz
+            else:
+                out[i, 0] += fx
+                out[i, 1] += fy
+                out[i, 2] += fz
+        form[t, 0] = acc
+        form[t, 1] = cross
+    if half:
+        reduce_threads(buf, out)
+    total = 0.0
+    mixed = 0.0
+    for t in range(nthreads):
+        total += form[t, 0]
+        mixed += form[t, 1]
+    return total, mixed
+
+
+def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, max_iter,
+                             theta0, carry, carry_out, mean, memory=MEMORY, local=True):
+    r""":func:`midpoint_solve` for any spin terms: B̄_i = Σ_terms B̄_i(W), each
+    operator adding its own midpoint field (``field(W, out, mean)``) every
+    sweep. The same updates (a single-site term's field is held at the
+    current W_i in the locally exact update: still the same fixed point),
+    Anderson acceleration, reflection form, compensated sum,
+    stopping rule and return values as :func:`midpoint_solve`; ``operators``
+    whose field is of the form Σ_j c_ij W_j are better solved there (one
+    compiled loop)."""
+    B = np.empty_like(s)
+    nthreads = threads.count()
+    mix = anderson_mix if nthreads > 1 else anderson_mix_serial
+    n = s.shape[0]
+    dF = np.empty((memory, n, 3))
+    dG = np.empty((memory, n, 3))
+    fprev = np.empty((n if memory > 0 else 0, 3))
+    gprev = np.empty_like(fprev)
+    gram = np.zeros((memory, memory))
+    jacobi_rows = np.zeros(n if local else 0, dtype=np.bool_)
+    cur, nxt = W, Wnext
+    which = 1  # as in midpoint_solve
+    previous = np.inf
+    theta = theta0
+    measured = -1.0
+    delta = first = 0.0
+    for it in range(1, max_iter + 1):
+        B[:] = 0.0
+        for op in operators:
+            op.field(cur, B, mean)
+        delta = midpoint_update(nthreads, s, cur, nxt, B, scale, stilde, carry, carry_out,
+                                local, jacobi_rows)
+        status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
+                                                     first, tol, floor)
+        if status >= 0:
+            if local:
+                end_points(nthreads, s, nxt, stilde, carry, carry_out, jacobi_rows)
+            return it, delta, status, which, measured, first
+        previous = delta
+        if memory > 0:
+            mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
+        else:
+            cur, nxt = nxt, cur
+            which = 1 - which
+    if local:
+        end_points(nthreads, s, nxt, stilde, carry, carry_out, jacobi_rows)
+    return max_iter, delta, NOT_CONVERGED, which, measured, first
