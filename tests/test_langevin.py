@@ -644,7 +644,7 @@ def test_bath_kernels_equal_the_spin_by_spin_formulas(nthreads_kernel):
     bath_block leaving its input as it was; with w = 1 it damps about
     2B − B0, to the bit; damp_from with the predictor's kick the same spins,
     the kick, and B kept."""
-    from ase_spin.md import langevin as lg
+    from ase_spin.md.kernels import bath as lg
     from ase_spin.md.gaussian import normal
     rng = np.random.default_rng(3)
     n = 600  # three blocks, the last one partial
@@ -801,7 +801,7 @@ def test_predictor_kernel_equals_the_spin_by_spin_formula(twin):
     """predict_midpoint (blocks of SIMD lanes) gives the bits of the per-spin
     formula: the frozen-field (Cayley) midpoint plus the extrapolated
     remainders, normalised; rows without spin 0."""
-    from ase_spin.md import langevin as lg
+    from ase_spin.md.kernels import bath as lg
     rng = np.random.default_rng(4)
     n = 530
     s = rng.normal(size=(n, 3))

@@ -17,8 +17,8 @@ from ..constants import HBAR
 from ..neighbors import rows_in_order
 from ..validate import integer, real_scalar
 from . import fused, kernels, policy
-from .policy import SOLVERS, TOL_RANGE, StepPolicy
 from .base import IntegrationError, SpinConvergenceError, SpinLatticeDynamics, UnstableStepError
+from .policy import SOLVERS, TOL_RANGE, StepPolicy
 
 __all__ = ["CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError",
            "HBAR"]

@@ -86,3 +86,31 @@ class SpinMDLogger(IOContext):
                                        dyn.get_temperature(), mnorm, ts,
                                        dyn.iterations))
         self.logfile.flush()
+
+
+class LangevinLogger(SpinMDLogger):
+    """:class:`SpinMDLogger`'s line (time, energies, T, |M|, Ts — LAMMPS
+    ``compute spin``'s estimator, meaningful only near equilibrium — and
+    sweeps) followed by Ebath, the energy the baths put in since the start, and
+    Econs = Etot − Ebath (eV)."""
+
+    def __init__(self, dyn, logfile, header=True, mode="a", **kwargs):
+        super().__init__(dyn, logfile, header=False, mode=mode, **kwargs)
+        n = len(dyn.atoms)
+        digits = 4 if n <= 100 else 3 if n <= 1000 else 2 if n <= 10000 else 1
+        self.hdr += " %13s %13s" % ("Ebath[eV]", "Econs[eV]")
+        self.fmt = self.fmt[:-1] + f" %13.{digits}f %13.{digits}f\n"
+        if header:
+            self.logfile.write(self.hdr + "\n")
+
+    def __call__(self):
+        dyn = self.dyn
+        epot = dyn.get_potential_energy()
+        ekin = dyn.get_kinetic_energy()
+        m = dyn.get_magnetization()
+        bath = dyn.get_bath_energy()
+        self.logfile.write(self.fmt % (
+            dyn.get_time() / (1000 * units.fs), epot + ekin, epot, ekin,
+            dyn.get_magnetic_energy(), dyn.get_temperature(), float((m @ m) ** 0.5),
+            dyn.get_spin_temperature(), dyn.iterations, bath, epot + ekin - bath))
+        self.logfile.flush()

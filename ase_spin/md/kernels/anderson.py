@@ -11,6 +11,7 @@ from ..._jit import threads
 from ..._jit.cloning import serial_twin
 from .midpoint import BLOCK, CONVERGED, NOT_CONVERGED, ROUNDOFF
 
+
 @nb.njit(cache=True, inline="always")
 def after_sweep(it, delta, previous, theta, measured, first, tol, floor):
     """Bookkeeping after sweep ``it`` with change ``delta`` (see :func:`midpoint_solve`):

@@ -8,6 +8,7 @@ import numpy as np
 
 from ..._jit.threads import threaded
 
+
 @threaded()
 def drift(q, p, m, h, carry, out, carry_out):
     """out = q + h p / m (Störmer–Verlet's position update), compensated: the

@@ -8,7 +8,6 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-
 # Exit status of :func:`midpoint_solve`.
 CONVERGED, ROUNDOFF, NOT_CONVERGED = 0, 1, 2
 
