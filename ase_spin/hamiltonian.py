@@ -22,7 +22,8 @@ import numpy as np
 from ._jit.threads import threads_for
 from .neighbors import NeighborCache, all_finite
 from .terms.ase_calculator import CalculatorTerm, is_ase_calculator
-from .terms.base import Species, System, Term, Want, parameter_generation
+from .terms.base import Species, System, Term, Want
+from .terms.parameters import parameter_generation
 from .validate import real_scalar, robust_norm
 
 __all__ = ["Hamiltonian", "Evaluator", "Want", "Evaluation", "AtomsTooCloseError"]

@@ -15,7 +15,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from .terms.ase_calculator import is_ase_calculator
-from .terms.base import Parameterised
+from .terms.parameters import Parameterised
 
 __all__ = ["encode_term", "decode_term"]
 

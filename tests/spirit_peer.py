@@ -37,7 +37,8 @@ from ase import Atoms, units
 
 from ase_spin.calculator import SpinLatticeCalculator
 from ase_spin.spins import get_spins, set_spins
-from ase_spin.terms.exchange import Coupling, Exchange
+from ase_spin.terms.couplings import Coupling
+from ase_spin.terms.exchange import Exchange
 
 __all__ = ["spirit_available", "load_spirit", "spirit_units", "SpiritHeisenberg",
            "ConstantCoupling", "run_collective", "run_splitting", "SOLVERS"]

@@ -1,8 +1,8 @@
-"""The Bethe–Slater couplings' exp(−x) (exchange.exp_minus) and the passes
-that take it a block of pairs at a time: within one ulp of the exact
+"""The Bethe–Slater couplings' exp(−x) (exchange_geometry.exp_minus) and the
+passes that take it a block of pairs at a time: within one ulp of the exact
 exponential, and the same bits in the single-species pass (its exponential
-fused into one loop with J and J'/r: exchange._bethe_slater_block, serial or
-threaded) as from exp_minus and the formula pair by pair, NaN kept."""
+fused into one loop with J and J'/r: exchange_geometry._bethe_slater_block,
+serial or threaded) as from exp_minus and the formula pair by pair, NaN kept."""
 
 import numba as nb
 import numpy as np
@@ -10,14 +10,15 @@ import pytest
 
 from ase_spin.neighbors import NeighborCache, separation
 from ase_spin.scenes import fcc_cobalt
-from ase_spin.terms import exchange as ex
+from ase_spin.terms import couplings
+from ase_spin.terms import exchange_geometry as geometry
 
 EXTENDED = np.finfo(np.longdouble).nmant >= 63  # x86's 80-bit long double
 
 
 @nb.njit(cache=True)
 def _exp_minus_all(x, out):
-    ex.exp_minus(x, out, np.empty(len(x), dtype=np.int64))
+    geometry.exp_minus(x, out, np.empty(len(x), dtype=np.int64))
 
 
 @nb.njit(cache=True)
@@ -33,14 +34,14 @@ def _one_pair_at_a_time(pos, row, nbr, image, images, rc2, p0, p1, p2, J, g, D):
             D[k, 2] = dz
             x[k] = r2 * p2
     e = np.empty(len(J))
-    ex.exp_minus(x, e, np.empty(len(J), dtype=np.int64))
+    geometry.exp_minus(x, e, np.empty(len(J), dtype=np.int64))
     for k in range(len(J)):
         r2 = D[k, 0] * D[k, 0] + D[k, 1] * D[k, 1] + D[k, 2] * D[k, 2]
         if r2 >= rc2:
             J[k] = 0.0
             g[k] = 0.0
         else:
-            J[k], g[k] = ex._bethe_slater(p0, p1, p2, x[k], e[k])
+            J[k], g[k] = geometry._bethe_slater(p0, p1, p2, x[k], e[k])
 
 
 def test_exp_minus_is_within_one_ulp_of_the_exact_value():
@@ -83,8 +84,8 @@ def test_blocked_geometry_is_the_one_pair_formula_to_the_bit(twin, stored, mean,
     cache.update(np.nan_to_num(pos), atoms.cell.array, atoms.pbc)
     pairs = cache.sublist(4.3, half=True)  # pairs on both sides of rc = 4
     m = pairs.row[-1]
-    bs = ex.BetheSlater(0.0446928, 0.003496, J3)
-    params = (16.0, ex._BETHE_SLATER, *bs._params)
+    bs = couplings.BetheSlater(0.0446928, 0.003496, J3)
+    params = (16.0, couplings.FORM_BETHE_SLATER, *bs._params)
     J0, g0, D = np.empty(m), np.empty(m), np.empty((m, 3))
     _one_pair_at_a_time(pos, pairs.row, pairs.j, pairs.image, pairs.images, params[0],
                         *params[2:], J0, g0, D)
@@ -93,7 +94,7 @@ def test_blocked_geometry_is_the_one_pair_formula_to_the_bit(twin, stored, mean,
     g = np.full(m, -1.0) if not stored else np.zeros(0)
     G = np.full((m, 3), -1.0) if stored else np.zeros((0, 3))
     Jbar = np.full(m, -1.0) if mean else np.zeros(0)
-    kernel = getattr(ex._geometry_single, twin)
+    kernel = getattr(geometry.geometry_single, twin)
     kernel(pos, pairs.row, pairs.j, pairs.image, pairs.images, *params, J, g, G, other, Jbar)
     same = np.testing.assert_array_equal  # NaN equals NaN here
     same(J, J0)
@@ -128,16 +129,17 @@ def test_species_table_pass_equals_the_one_species_pass_to_the_bit(twin):
     cache.update(pos, atoms.cell.array, atoms.pbc)
     pairs = cache.sublist(4.3, half=True)
     m = pairs.row[-1]
-    params = (16.0, ex._BETHE_SLATER, *ex.BetheSlater(0.0446928, 0.003496, 1.4885)._params)
+    bs = couplings.BetheSlater(0.0446928, 0.003496, 1.4885)
+    params = (16.0, couplings.FORM_BETHE_SLATER, *bs._params)
     table = np.zeros((2, 2, 5))
     table[:, :] = params
-    table[1, 1, ex._FORM] = ex._OFF  # one species pair switched off: J = 0 there
+    table[1, 1, couplings.FORM] = couplings.FORM_OFF  # one species pair switched off: J = 0 there
     types = np.arange(len(pos)) % 2
     J1, g1, J2, g2 = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
     args = (pos, pairs.row, pairs.j, pairs.image, pairs.images)
     none = (np.zeros((0, 3)), np.zeros(0), np.zeros(0))
-    getattr(ex._geometry_single, twin)(*args, *params, J1, g1, *none)
-    getattr(ex._geometry_kernel, twin)(*args, types, table, J2, g2, *none)
+    getattr(geometry.geometry_single, twin)(*args, *params, J1, g1, *none)
+    getattr(geometry.geometry_kernel, twin)(*args, types, table, J2, g2, *none)
     off = (types[pairs.i] == 1) & (types[pairs.j] == 1)
     np.testing.assert_array_equal(J2[~off], J1[~off])
     np.testing.assert_array_equal(g2[~off], g1[~off])

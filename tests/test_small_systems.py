@@ -377,7 +377,7 @@ def test_fused_step_above_tiny_threads_its_heavy_pieces_same_bits_any_threads(mo
     """Between SERIAL_ALL_BELOW and SERIAL_BELOW atoms the fused step calls the
     threaded twins of Lennard-Jones and the exchange geometry, as the general
     path does there: one thread or all, the same trajectory bit for bit."""
-    from ase_spin.terms import exchange as exchange_module
+    from ase_spin.terms import exchange_fused
 
     used = _spy_fused(monkeypatch)
     runs = []
@@ -391,7 +391,7 @@ def test_fused_step_above_tiny_threads_its_heavy_pieces_same_bits_any_threads(mo
             lattice, _ = fused._lattice_pieces(dyn.ev)
             spin = dyn._state.ops[0].compiled()
         assert lattice is lennard_jones._lj_forces_threaded
-        assert spin[1] is exchange_module._exchange_geometry_threaded
+        assert spin[1] is exchange_fused.exchange_geometry_threaded
     assert used["done"] > 5 * used["general"]  # the general path: each run's first step
     for a, b in zip(*runs):
         assert np.array_equal(a, b)

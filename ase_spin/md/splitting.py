@@ -14,7 +14,7 @@ import numpy as np
 from ase import units
 
 from .._jit.cloning import compile_with
-from ..terms.base import linear_pair_field
+from ..terms.skeletons import linear_pair_field
 from . import kernels
 from .base import SpinLatticeDynamics, UnstableStepError
 

@@ -7,7 +7,8 @@ from .biquadratic import BiquadraticExchange
 from .dmi import DMI
 from .base import SingleSiteTerm, SpinOperator, SpinTerm, Term
 from .eam import EAM
-from .exchange import BetheSlater, Coupling, Cubic, Exchange, ExchangeOperator
+from .couplings import BetheSlater, Coupling, Cubic
+from .exchange import Exchange, ExchangeOperator
 from .lennard_jones import LennardJones
 from .tabulated import ShellExchange, Tabulated
 from .zeeman import Zeeman

@@ -7,8 +7,9 @@ import numba as nb
 import numpy as np
 
 from ..validate import real_scalar, unit_vector
-from .base import SingleSiteTerm, per_atom, species_values
+from .base import SingleSiteTerm
 from .lammps_form import LammpsFix, number_text, vector_text
+from .parameters import per_atom, species_values
 
 __all__ = ["UniaxialAnisotropy", "CubicAnisotropy"]
 

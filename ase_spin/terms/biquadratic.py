@@ -6,9 +6,11 @@ import numba as nb
 
 from ..neighbors import separation
 from ..validate import flag
-from .base import PairSpinTerm, resolve_pairs
-from .exchange import NO_ROWS, BetheSlater, Exchange, copy_positions
+from .base import PairSpinTerm
+from .couplings import BetheSlater
+from .exchange import NO_ROWS, Exchange, copy_positions
 from .lammps_form import LammpsPair, number_text
+from .parameters import resolve_pairs
 
 __all__ = ["BiquadraticExchange"]
 

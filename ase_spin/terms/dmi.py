@@ -8,8 +8,9 @@ import numpy as np
 from .._jit.threads import threaded
 from ..neighbors import separation
 from ..validate import length, real_scalar, unit_vector
-from .base import PairSpinTerm, is_pair_mapping, pair_values, resolve_pairs
+from .base import PairSpinTerm
 from .lammps_form import LammpsPair, number_text, vector_text
+from .parameters import is_pair_mapping, pair_values, resolve_pairs
 
 __all__ = ["DMI"]
 

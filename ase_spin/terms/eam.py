@@ -14,9 +14,10 @@ from .._jit.reductions import (balanced_chunks, reduce_threads, reduce_threads_s
                                sum_over_threads)
 from .._jit.threads import threaded
 from ..neighbors import separation
-from .base import PairParameters, Term
+from .base import Term
 from .eam_files import EAMFileError, lammps_arrays, lammps_potential_path, read_potential, spline
 from .lammps_form import LammpsPair
+from .parameters import PairParameters
 
 __all__ = ["EAM", "EAMFileError", "lammps_potential_path"]
 

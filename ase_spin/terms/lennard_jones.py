@@ -12,8 +12,9 @@ from .._jit.reductions import (balanced_chunks, reduce_threads, reduce_threads_s
 from .._jit.threads import threaded
 from ..neighbors import separation
 from ..validate import length
-from .base import Term, is_pair_mapping, pair_values, real_or_none, resolve_pairs
+from .base import Term
 from .lammps_form import LammpsPair, number_text
+from .parameters import is_pair_mapping, pair_values, real_or_none, resolve_pairs
 
 __all__ = ["LennardJones"]
 

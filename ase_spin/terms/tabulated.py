@@ -12,8 +12,9 @@ from collections.abc import Mapping
 import numpy as np
 
 from ..validate import length, real_array
-from .base import pair_key
-from .exchange import Coupling, Exchange
+from .couplings import Coupling
+from .exchange import Exchange
+from .parameters import pair_key
 
 __all__ = ["Tabulated", "ShellCoupling", "ShellExchange"]
 

@@ -1,0 +1,167 @@
+"""The compiled skeletons of the spin terms: the pass over atoms of every
+single-site term and the pass over pairs of every pair spin term, each
+compiled once per term with that term's compiled functions bound in
+(:func:`compile_site_pass`, :func:`compile_pair_pass`), and the field of a
+term linear in the spins over a pair list (:func:`linear_pair_field`)."""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from .._jit.cloning import compile_with
+from .._jit.reductions import balanced_chunks, reduce_threads, sum_over_threads
+
+__all__ = ["linear_pair_field", "compile_site_pass", "compile_pair_pass"]
+
+
+@nb.njit(cache=True, inline="always")
+def linear_pair_field(i, s, row, nbr, c):
+    """B_i = Σ_j c_k s_j over row i of a pair list: the field of a term in the
+    ``linear_pairs`` form, from the spins as they are."""
+    bx = 0.0
+    by = 0.0
+    bz = 0.0
+    for k in range(row[i], row[i + 1]):
+        j = nbr[k]
+        bx += c[k] * s[j, 0]
+        by += c[k] * s[j, 1]
+        bz += c[k] * s[j, 2]
+    return bx, by, bz
+
+
+def _site_pass(s, data, B, energies, want_b, want_energies):
+    """Skeleton of every single-site term's pass (compiled once per term, with
+    ``site_field`` and ``site_energy`` bound to that term's functions):
+    B_i += b(i, s, data), e_i += e(i, s, data); returns Σ_i e_i."""
+    total = 0.0
+    for i in range(s.shape[0]):
+        if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+            continue
+        if want_b:
+            bx, by, bz = site_field(i, s, data)  # noqa: F821 - bound per term
+            B[i, 0] += bx
+            B[i, 1] += by
+            B[i, 2] += bz
+        e = site_energy(i, s, data)  # noqa: F821 - bound per term
+        total += e
+        if want_energies:
+            energies[i] += e
+    return total
+
+
+def compile_site_pass(field, energy, name):
+    """:func:`_site_pass` for one term's compiled ``field(i, s, data) -> (Bx,
+    By, Bz)`` and ``energy(i, s, data) -> E_i``, cached on disk under a name
+    that changes with their code (a cached skeleton must not outlive an edit
+    of the functions it calls)."""
+    return compile_with(_site_pass, {"site_field": field, "site_energy": energy}, name)
+
+
+def _pair_pass(nthreads, row, nbr, half, s, data, B, F, energies, want_b, want_f,
+               want_energy, want_energies, want_virial):
+    """Skeleton of every pair spin term's pass over a pair list (compiled once
+    per term, with ``pair_field`` and ``pair_energy`` bound to that term's
+    functions). For each pair k = (i → j) of row i:
+
+        B_i += b(k, i, j, s, data, False)      (half list: B_j += b(k, j, i, s, data, True))
+        (e, f, d) = pair_energy(k, i, j, s, data):  E += e,  F_j += f,  F_i −= f,
+        e_i, e_j += ½e,  W −= sym(f ⊗ d)
+
+    with f = −∂e/∂r_j the force on j and d = r_j + S − r_i. A full list holds
+    each pair twice: there row i adds only to atom i, and halves e and W.
+    Returns (E, W in Voigt order xx yy zz yz xz xy)."""
+    n = len(row) - 1
+    bounds = balanced_chunks(row, nthreads)
+    scatter = half
+    nb_ = n if scatter else 0
+    bbuf = np.zeros((nthreads, nb_ if want_b else 0, 3))
+    fbuf = np.zeros((nthreads, nb_ if want_f else 0, 3))
+    ebuf = np.zeros((nthreads, nb_ if want_energies else 0, 1))
+    acc = np.zeros((nthreads, 7))
+    need_e = want_f or want_energy or want_energies or want_virial
+    w = 1.0 if half else 0.5
+    for t in nb.prange(nthreads):
+        v = np.zeros(7)
+        for i in range(bounds[t], bounds[t + 1]):
+            if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+                continue
+            bx = 0.0
+            by = 0.0
+            bz = 0.0
+            fx = 0.0
+            fy = 0.0
+            fz = 0.0
+            ei = 0.0
+            for k in range(row[i], row[i + 1]):
+                j = nbr[k]
+                if want_b:
+                    cx, cy, cz = pair_field(k, i, j, s, data, False)  # noqa: F821
+                    bx += cx
+                    by += cy
+                    bz += cz
+                    if scatter:
+                        cx, cy, cz = pair_field(k, j, i, s, data, True)  # noqa: F821
+                        bbuf[t, j, 0] += cx
+                        bbuf[t, j, 1] += cy
+                        bbuf[t, j, 2] += cz
+                if need_e:
+                    e, gx, gy, gz, dx, dy, dz = pair_energy(k, i, j, s, data)  # noqa: F821
+                    ei += 0.5 * e
+                    v[0] += w * e
+                    fx -= gx
+                    fy -= gy
+                    fz -= gz
+                    if scatter:
+                        if want_f:
+                            fbuf[t, j, 0] += gx
+                            fbuf[t, j, 1] += gy
+                            fbuf[t, j, 2] += gz
+                        if want_energies:
+                            ebuf[t, j, 0] += 0.5 * e
+                    if want_virial:
+                        v[1] -= w * gx * dx
+                        v[2] -= w * gy * dy
+                        v[3] -= w * gz * dz
+                        v[4] -= 0.5 * w * (gy * dz + gz * dy)
+                        v[5] -= 0.5 * w * (gx * dz + gz * dx)
+                        v[6] -= 0.5 * w * (gx * dy + gy * dx)
+            if scatter:
+                if want_b:
+                    bbuf[t, i, 0] += bx
+                    bbuf[t, i, 1] += by
+                    bbuf[t, i, 2] += bz
+                if want_f:
+                    fbuf[t, i, 0] += fx
+                    fbuf[t, i, 1] += fy
+                    fbuf[t, i, 2] += fz
+                if want_energies:
+                    ebuf[t, i, 0] += ei
+            else:  # row i belongs to this thread alone
+                if want_b:
+                    B[i, 0] += bx
+                    B[i, 1] += by
+                    B[i, 2] += bz
+                if want_f:
+                    F[i, 0] += fx
+                    F[i, 1] += fy
+                    F[i, 2] += fz
+                if want_energies:
+                    energies[i] += ei
+        for c in range(7):
+            acc[t, c] = v[c]
+    if scatter:
+        reduce_threads(bbuf, B)
+        reduce_threads(fbuf, F)
+        reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
+    return sum_over_threads(acc)
+
+
+def compile_pair_pass(field, energy, name):
+    """:func:`_pair_pass` for one term's compiled ``field(k, a, b, s, data,
+    reverse) -> (Bx, By, Bz)`` (the field on spin a from spin b over pair k,
+    ``reverse`` when a is the pair's second atom) and ``energy(k, i, j, s,
+    data) -> (e, fx, fy, fz, dx, dy, dz)``, cached on disk under a name that
+    changes with their code."""
+    return compile_with(_pair_pass, {"pair_field": field, "pair_energy": energy}, name,
+                        parallel=True)
