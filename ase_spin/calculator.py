@@ -141,7 +141,7 @@ class SpinLatticeCalculator(Calculator):
     def publish(self, atoms, results):
         """Take ``results`` as computed for ``atoms`` as they are now (what an
         integrator does before a frame is written; see
-        :meth:`~ase_spin.md.base.SpinLatticeDynamics.publish_results`)."""
+        :meth:`~ase_spin.md.observables.Observables.publish_results`)."""
         self.results = dict(results)
         self.atoms = atoms.copy()
         self._fingerprint = self.hamiltonian.fingerprint()

@@ -68,7 +68,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), os.pardir, "tests"))
 from ase_spin import CollectivePRK, SuzukiTrotter  # noqa: E402
 from ase_spin.terms.base import Want  # noqa: E402
 from ase_spin.md import fused  # noqa: E402
-from ase_spin.md.base import TimestepWarning  # noqa: E402
+from ase_spin.md.errors import TimestepWarning  # noqa: E402
 from ase_spin.md.compositions import composition_coefficients  # noqa: E402
 from ase_spin.md.ode import reference_solution  # noqa: E402
 from ase_spin.scenes import cone  # noqa: E402

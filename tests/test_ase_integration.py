@@ -172,7 +172,7 @@ def test_one_calculation_per_step(integrator, tmp_path):
     assert emt.calls - before == 10
 
 
-@pytest.mark.filterwarnings("ignore::ase_spin.md.base.TimestepWarning")  # 2 fs: on purpose
+@pytest.mark.filterwarnings("ignore::ase_spin.md.errors.TimestepWarning")  # 2 fs: on purpose
 def test_collective_prk_with_emt_conserves_energy_at_second_order():
     """Energy error of CollectivePRK with EMT + exchange over 40 fs at h and
     h/2: small, and shrinking as h² (ratio 4.0 measured; 3–5 allows for the
@@ -403,7 +403,7 @@ def _iron(n=2):
 
 
 def test_timestep_warnings_name_the_value_in_fs():
-    from ase_spin.md.base import TimestepWarning
+    from ase_spin.md.errors import TimestepWarning
 
     # 0.1 meant as fs is 1.02 fs: too long for iron's precession (period ~5 fs)
     with pytest.warns(TimestepWarning, match=r"timestep 1.018 fs .*spin precesses"):

@@ -8,7 +8,7 @@ import vesin
 from ase import Atoms
 from ase.neighborlist import neighbor_list
 
-from ase_spin.neighbors import NeighborCache, _sweep_pairs, _wrap
+from ase_spin.neighbors import NeighborCache, sweep_pairs, wrap_positions
 
 from conftest import structures
 
@@ -75,8 +75,8 @@ def test_cell_list_matches_the_sweep(name):
     atoms = structures()[name]
     pos, cell, pbc = atoms.positions, atoms.cell.array, atoms.pbc
     got = NeighborCache(4.7, 0.3)._search(pos, cell, pbc)
-    wrapped, shift = _wrap(pos, cell, pbc)
-    i, j, s = _sweep_pairs(wrapped, cell, pbc, 5.0)
+    wrapped, shift = wrap_positions(pos, cell, pbc)
+    i, j, s = sweep_pairs(wrapped, cell, pbc, 5.0)
     assert triples(*got) == triples(i, j, s + shift[i] - shift[j])
 
 
@@ -165,14 +165,14 @@ def test_a_run_does_not_depend_on_the_fine_skin(integrator, skin, monkeypatch):
     from ase import units
 
     import ase_spin
-    from ase_spin import neighbors
+    from ase_spin.neighbors import cache as neighbor_cache
     from ase_spin.scenes import fcc_cobalt, fcc_cobalt_terms
 
     lj, exchange = fcc_cobalt_terms()
     exchange = ase_spin.Exchange(exchange.coupling, rc=4.34)
     finals = []
-    for fraction in (neighbors.FINE_SKIN, 1.0):
-        monkeypatch.setattr(neighbors, "FINE_SKIN", fraction)
+    for fraction in (neighbor_cache.FINE_SKIN, 1.0):
+        monkeypatch.setattr(neighbor_cache, "FINE_SKIN", fraction)
         atoms = fcc_cobalt(3, temperature_K=600.0)
         atoms.calc = ase_spin.SpinLatticeCalculator([lj, exchange], skin=skin)
         if integrator == "Langevin":

@@ -140,7 +140,7 @@ print(atoms.get_potential_energy())
 def test_an_edit_of_an_inlined_helper_reaches_the_kernels_that_inline_it(tmp_path):
     """End to end, in a copy of the package: a kernel cached on disk, then an
     edit of a helper it inlines from another module (``separation`` in
-    neighbors.py, inlined by the Lennard-Jones kernel): the next process gives
+    neighbors/checks.py, inlined by the Lennard-Jones kernel): the next process gives
     the edited result, not the cached machine code's."""
     import shutil
 
@@ -157,7 +157,7 @@ def test_an_edit_of_an_inlined_helper_reaches_the_kernels_that_inline_it(tmp_pat
 
     before = energy()
     assert energy() == before  # from the cache
-    neighbors = tmp_path / "ase_spin" / "neighbors.py"
+    neighbors = tmp_path / "ase_spin" / "neighbors" / "checks.py"
     text = neighbors.read_text()
     old = "    return dx, dy, dz, dx * dx + dy * dy + dz * dz\n"
     assert text.count(old) == 1

@@ -553,7 +553,7 @@ def falls_at_order_above(b1, se1, b2, se2, order):
     return abs(b1) > Z * se1 and abs(b2) < abs(b1) / 2**order + Z * np.hypot(se1, se2)
 
 
-@pytest.mark.filterwarnings("ignore::ase_spin.md.base.TimestepWarning")
+@pytest.mark.filterwarnings("ignore::ase_spin.md.errors.TimestepWarning")
 def test_weak_second_order_single_spin():
     """Stationary bias of ⟨s·ĥ⟩ (x = 2) at ωh = 2.4 and 1.2 (large steps, so
     that the bias is resolved: ~4 % of ⟨s·ĥ⟩ at 2.4): it falls by more than
@@ -571,7 +571,7 @@ def test_weak_second_order_single_spin():
 
 
 @pytest.mark.slow
-@pytest.mark.filterwarnings("ignore::ase_spin.md.base.TimestepWarning")
+@pytest.mark.filterwarnings("ignore::ase_spin.md.errors.TimestepWarning")
 def test_weak_second_order_interacting_pairs():
     """Exchange-coupled pairs in a field (x = 1, J/k_B T = 2): the stationary
     bias of ⟨s₁·s₂⟩ at ωh = 1.6 and 0.8 falls by more than 2^1.5 (measured
@@ -771,7 +771,7 @@ def test_field_at_a_steps_end_from_its_midpoint_fields(monkeypatch):
     assert abs(change - (energy_at(atoms, st.s) - energy_at(atoms, x))) < 1e-12 * len(atoms)
 
 
-@pytest.mark.filterwarnings("ignore::ase_spin.md.base.TimestepWarning")
+@pytest.mark.filterwarnings("ignore::ase_spin.md.errors.TimestepWarning")
 def test_pairs_sampled_between_shared_baths_are_canonical():
     """Exchange-coupled pairs, no field (exchange the only spin term), sampled
     every 4th step: three steps in four share their baths and take the field

@@ -14,7 +14,7 @@ from ase_spin.md.kernels import local_midpoint
 from ase_spin.scenes import fcc_cobalt, fcc_cobalt_terms, field_anisotropy_terms
 from ase_spin._jit.threads import chunks
 
-pytestmark = pytest.mark.filterwarnings("ignore::ase_spin.md.base.TimestepWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::ase_spin.md.errors.TimestepWarning")
 
 
 def unit(v):
@@ -662,7 +662,7 @@ def _simple_cubic_atoms(n, threads=None):
     return atoms
 
 
-@pytest.mark.filterwarnings("ignore::ase_spin.md.base.TimestepWarning")  # 4 fs: on purpose
+@pytest.mark.filterwarnings("ignore::ase_spin.md.errors.TimestepWarning")  # 4 fs: on purpose
 def test_two_colourable_lattice_of_threaded_size_takes_colour_order():
     """Simple cubic, 12³ = 1 728 spins (threaded size), frozen, order 4 at
     4 fs: its stages take colour order (two colours), in fewer sweeps than

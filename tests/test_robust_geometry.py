@@ -12,7 +12,7 @@ from ase.build import bulk
 
 import ase_spin
 from ase_spin import Exchange, BetheSlater, LennardJones, SpinLatticeCalculator
-from ase_spin.neighbors import NeighborCache, _sweep_pairs, _wrap, separation
+from ase_spin.neighbors import NeighborCache, separation, sweep_pairs, wrap_positions
 
 from conftest import CO_BS, CO_LJ, random_spins, structures
 
@@ -173,8 +173,8 @@ def test_sweep_search_finds_vesins_pairs(name):
     pos = atoms.positions
     cell, pbc = atoms.cell.array, atoms.pbc
     i, j, s = cache._search(pos, cell, pbc)
-    wrapped, shift = _wrap(pos, cell, pbc)
-    i2, j2, s2 = _sweep_pairs(wrapped, cell, pbc, 5.0)
+    wrapped, shift = wrap_positions(pos, cell, pbc)
+    i2, j2, s2 = sweep_pairs(wrapped, cell, pbc, 5.0)
     s2 = s2 + shift[i2] - shift[j2]
     key = lambda i, j, s: sorted(zip(i.tolist(), j.tolist(), map(tuple, s.tolist())))  # noqa: E731
     assert key(i, j, s) == key(i2, j2, s2)

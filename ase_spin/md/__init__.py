@@ -1,9 +1,10 @@
 """Integrators for spin–lattice dynamics (ASE ``MolecularDynamics``)."""
 
-from .base import (HBAR, IntegrationError, SpinConvergenceError, SpinLatticeDynamics,
-                   UnstableStepError)
+from ..constants import HBAR
+from .base import SpinLatticeDynamics
 from .collective import CollectivePRK
 from .compositions import COMPOSITIONS
+from .errors import IntegrationError, SpinConvergenceError, UnstableStepError
 from .langevin import Langevin, relax_spins
 from .logger import SpinMDLogger
 from .splitting import SuzukiTrotter

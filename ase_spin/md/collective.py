@@ -17,7 +17,8 @@ from ..constants import HBAR
 from ..neighbors import rows_in_order
 from ..validate import integer, real_scalar
 from . import fused, kernels, policy
-from .base import IntegrationError, SpinConvergenceError, SpinLatticeDynamics, UnstableStepError
+from .base import SpinLatticeDynamics
+from .errors import IntegrationError, SpinConvergenceError, UnstableStepError
 from .policy import SOLVERS, TOL_RANGE, StepPolicy
 
 __all__ = ["CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError",

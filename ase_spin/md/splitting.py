@@ -16,7 +16,8 @@ from ase import units
 from .._jit.cloning import compile_with
 from ..terms.skeletons import linear_pair_field
 from . import kernels
-from .base import SpinLatticeDynamics, UnstableStepError
+from .base import SpinLatticeDynamics
+from .errors import UnstableStepError
 
 #: Largest rotation (rad) of one spin in one sweep before the step is refused:
 #: far beyond it the splitting is meaningless (the Cayley rotation saturates at π).
