@@ -223,6 +223,8 @@ class _StoredOperator(SpinOperator):
     """An exchange operator in the stored form: the package's operator (in the g
     form) for J, J̄ and the fields, forces and virial from G and d kept per pair."""
 
+    linear = True  # its field is C s (linear_pairs)
+
     def __init__(self, op, positions):
         assert not op.stored
         self.op = op

@@ -175,3 +175,31 @@ def test_invariances(make, rng):
     assert rot.energy == pytest.approx(ref.energy, rel=1e-11, abs=1e-12)
     np.testing.assert_allclose(rot.forces, ref.forces @ R.T, atol=1e-10)
     np.testing.assert_allclose(rot.magnetic_forces, ref.magnetic_forces @ R.T, atol=1e-11)
+
+
+def _operator_classes():
+    import ase_spin.terms  # noqa: F401 - every term module, so every operator class
+    from ase_spin.terms.base import SpinOperator
+
+    found, todo = [], [SpinOperator]
+    while todo:
+        cls = todo.pop()
+        found.append(cls)
+        todo.extend(cls.__subclasses__())
+    return [c for c in found if c.__module__.startswith("ase_spin")]
+
+
+CAPABILITIES = {"linear": ("linear_pairs",), "forces_with_field": ("forces_and_field",),
+                "merges_forces": ("pairs_with", "forces_here_and_there", "finish_forces")}
+
+
+def test_spin_operators_declare_exactly_the_capabilities_they_provide():
+    """The integrators read the capability flags, never probe for methods: a
+    flag must come with its methods, and methods with their flag."""
+    classes = _operator_classes()
+    assert len(classes) >= 4
+    for cls in classes:
+        for flag, methods in CAPABILITIES.items():
+            has = [callable(getattr(cls, m, None)) for m in methods]
+            assert all(has) == bool(getattr(cls, flag)), (cls.__name__, flag)
+            assert all(has) or not any(has), (cls.__name__, flag)

@@ -354,7 +354,7 @@ class CollectivePRK(SpinLatticeDynamics):
         :meth:`_spin_forces` then :meth:`_end_forces`."""
         st = self._state
         ops, there = st.ops, st.ops_next
-        if len(ops) == 1 and len(there) == 1 and hasattr(ops[0], "forces_here_and_there"):
+        if len(ops) == 1 and len(there) == 1 and ops[0].merges_forces:
             F = st.FL.copy()
             keep = ops[0].forces_here_and_there(W, F, there[0])
             if keep is not None:
@@ -363,10 +363,8 @@ class CollectivePRK(SpinLatticeDynamics):
 
     def _finish_round(self, pending):
         """The end forces F_L(q̃) + the kept partial sums of :meth:`_round_forces`."""
-        from ..terms.exchange import add_kept
-
-        FL = self._state.FL
-        return add_kept(pending[0], FL, np.empty_like(FL))
+        st = self._state
+        return st.ops[0].finish_forces(pending[0], st.FL, np.empty_like(st.FL))
 
     def _drop_round(self, pending):
         """The end forces begun by :meth:`_round_forces` are not the step's: undo
@@ -547,7 +545,7 @@ class CollectivePRK(SpinLatticeDynamics):
         st = self._state
         args = (s, W, st.Wnext, stilde, scale, tol, st.policy.floor, max_iter,
                 policy.start_contraction(st.theta[stage]), st.carry_s, carry)
-        if len(operators) == 1 and hasattr(operators[0], "linear_pairs"):
+        if len(operators) == 1 and operators[0].linear:
             # B̄_i = Σ_j c_ij W_j: the whole iteration in one compiled loop
             coloured = None
             if local and st.sweep_order[stage] == policy.COLOUR_ORDER:  # (frozen)

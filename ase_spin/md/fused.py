@@ -796,7 +796,7 @@ def _frozen_runner(half):
 def _frozen_block(dyn, steps):
     """:func:`collective_block` for a frozen lattice."""
     st = dyn._state
-    if dyn.atoms.constraints or len(st.ops) != 1 or not hasattr(st.ops[0], "linear_pairs"):
+    if dyn.atoms.constraints or len(st.ops) != 1 or not st.ops[0].linear:
         return 0, 0, 0, 0
     pairs, c = st.ops[0].linear_pairs(False)
     run = _frozen_runner(bool(pairs.half))

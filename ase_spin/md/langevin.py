@@ -354,7 +354,7 @@ class Langevin(CollectivePRK):
         (:meth:`_end_forces`; ``op`` the one spin operator at q̃, else None)."""
         st = self._state
         return (st.field_out is not None and st.field_filled and self._spin_bath_on()
-                and hasattr(op, "forces_and_field"))
+                and op is not None and op.forces_with_field)
 
     def _begin_bath(self, s_new):
         """y₀ = D(h/2) N(h) D(h/2) s̃ into the spare spins, its keys drawn as
@@ -381,7 +381,7 @@ class Langevin(CollectivePRK):
         ops, there = st.ops, st.ops_next
         here = ops[0] if len(ops) == 1 else None
         op = there[0] if len(there) == 1 else None
-        if not (self._bath_begins_early(op) and hasattr(here, "pairs_with")
+        if not (self._bath_begins_early(op) and here is not None and here.merges_forces
                 and here.pairs_with(op)):
             return super()._round_forces(W, s_new)
         lattice_key, y0, rng_state = self._begin_bath(s_new)
@@ -498,7 +498,7 @@ class Langevin(CollectivePRK):
         form = cross = 0.0
         others = 0.0
         for op in st.ops:
-            if hasattr(op, "linear_pairs"):
+            if op.linear:
                 pairs, coupling = op.linear_pairs()
                 f, g = kernels.linear_field_and_form(threads.count(), pairs.row, pairs.j,
                                                      coupling, pairs.half, st.kick, y, x, B)
@@ -638,7 +638,7 @@ class Langevin(CollectivePRK):
         B = np.zeros_like(s)
         others = []
         for op in st.ops:
-            if hasattr(op, "linear_pairs"):
+            if op.linear:
                 op.field(s, B)
             else:
                 others.append(op)

@@ -107,7 +107,7 @@ class SuzukiTrotter(SpinLatticeDynamics):
         tau = (-0.25 * h * self.sigma / self.hbar) * self._state.rate
         exact = self.rotation == "exact"
         s = self._state.s
-        if len(operators) == 1 and hasattr(operators[0], "linear_pairs"):
+        if len(operators) == 1 and operators[0].linear:
             pairs, J = operators[0].linear_pairs()
             angle = rotate_sweeps(pairs.row, pairs.j, J, s, tau, exact)
         else:

@@ -132,22 +132,30 @@ class SpinOperator:
       compiled function ``f(i, s, data) -> (Bx, By, Bz)`` giving spin i's field
       from the spins as they are, and its ``data`` tuple (None: not offered).
 
-    Optional, for a term whose field is linear in the spins, B = C s
-    (exchange): ``linear_pairs(mean)`` — (pairs, c) with B_i = Σ_k c_k s_j,
-    what the compiled midpoint solvers and the thermostat's forms take; and
-    ``forces_and_field(W, forces, u, field)`` — the lattice forces at W and the
-    field C u at other spins u in one pass (the thermostat's fields after its
-    noise, with a step's last forces); ``pairs_with(there)`` and
-    ``forces_here_and_there(W, forces, there, u=None, field=None)`` — the
-    lattice forces at W of this operator and of ``there`` (prepared at the
-    step's other end, on the same pairs: kept as per-thread partial sums for
-    ``add_kept``), and optionally C u, in one pass (a step's forces at q with
-    its end forces).
+    Capabilities an operator may declare (class attributes, False here), each
+    with the methods it then provides; integrators ask for the capability,
+    never for a concrete term:
+
+    - ``linear`` (a field linear in the spins, B = C s: exchange):
+      ``linear_pairs(mean)`` — (pairs, c) with B_i = Σ_k c_k s_j, what the
+      compiled midpoint solvers and the thermostat's forms take;
+    - ``forces_with_field``: ``forces_and_field(W, forces, u, field)`` — the
+      lattice forces at W and the field C u at other spins u in one pass (the
+      thermostat's fields after its noise, with a step's last forces);
+    - ``merges_forces``: ``pairs_with(there)``, ``forces_here_and_there(W,
+      forces, there, u=None, field=None)`` — the lattice forces at W of this
+      operator and of ``there`` (prepared at the step's other end, on the same
+      pairs: kept as per-thread partial sums), and optionally C u, in one pass
+      (a step's forces at q with its end forces) — and ``finish_forces(keep,
+      base, out)``, which adds those partial sums onto ``base``.
 
     Non-magnetic atoms get zero field.
     """
 
     site = None
+    linear = False
+    forces_with_field = False
+    merges_forces = False
 
     def compiled(self):
         """Optional: this operator as compiled pieces of the integrators' fused

@@ -68,6 +68,10 @@ class ExchangeOperator(SpinOperator):
     the same pass over the pairs.
     """
 
+    linear = True
+    forces_with_field = True
+    merges_forces = True
+
     __slots__ = ("pairs", "J", "g", "G", "pos", "Jbar", "offset", "params", "stored")
 
     def __init__(self, pairs, J, g, G, pos, offset=0.0):
@@ -187,6 +191,12 @@ class ExchangeOperator(SpinOperator):
                         self.offset, forces, keep, there.J, u if with_field else NO_ROWS,
                         field if with_field else NO_ROWS)
         return keep
+
+    @staticmethod
+    def finish_forces(keep, base, out):
+        """out = base + the partial sums ``keep`` of :meth:`forces_here_and_there`
+        (:func:`add_kept`)."""
+        return add_kept(keep, base, out)
 
 
 def add_kept(keep, base, out):
