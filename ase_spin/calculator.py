@@ -36,8 +36,10 @@ def _system_changes(old, new, tol, ignored):
     ``all_changes`` differ by more than ``tol`` (or exist in one only), the
     same list, each property first compared for exact equality, which is what
     an unchanged property is. ASE's own comparison (``np.allclose`` per
-    property, ~25 µs each) cost more than the evaluation of 500 atoms at each
-    of the three calls energy, forces, magnetic forces."""
+    property, at each of the three calls energy, forces, magnetic forces)
+    cost more than the evaluation of a small system itself; the exact check
+    first exists only for speed (``benchmarks/bench_calculator.py --parts``;
+    docs/benchmarks.md, "Why each fast path exists")."""
     if old is None:
         return list(all_changes)
     check = [p for p in all_changes if p not in ignored]

@@ -158,8 +158,9 @@ def split_moments(moments):
 @nb.njit(cache=True)
 def _split_rows(v, unit, mu):
     """:func:`split_moments`, row by row: one pass, no temporaries (it runs
-    at every call of the ASE calculator; the array expressions it replaced
-    took ~40 µs for 500 atoms)."""
+    at every call of the ASE calculator, where numpy's array expressions and
+    their temporaries cost a visible share of a small system's call;
+    ``benchmarks/bench_calculator.py --parts`` times it, "bound_evaluator")."""
     for i in range(v.shape[0]):
         x = v[i, 0]
         y = v[i, 1]

@@ -73,10 +73,10 @@ def test_compile_with_names_a_skeleton_after_the_package_source(monkeypatch):
     any module) gives a new cache entry instead of the stale machine code."""
     from ase_spin._jit import cache as compilation
     from ase_spin._jit.cloning import compile_with
-    from ase_spin.md import fused, kernels
+    from ase_spin.md import fused_skeletons, kernels
 
     def name():
-        fn = compile_with(fused._run_frozen, {"solve": kernels.midpoint_solve.serial,
+        fn = compile_with(fused_skeletons.run_frozen_steps, {"solve": kernels.midpoint_solve.serial,
                                                    "extrapolate": kernels.extrapolate_rows.serial,
                                                    "best_order": kernels.best_order_rows}, "x")
         return fn.py_func.__qualname__

@@ -1,11 +1,11 @@
 """Announce numba's first-use compilation of this package's kernels.
 
 Every hot loop here is compiled by numba with ``cache=True``: the first call of
-each kernel in a fresh install compiles it (a scene's whole set takes 10–20 s
-on an idle 2-core machine, more on a busy one, see docs/benchmarks.md) and
-writes the machine code to numba's on-disk cache; later processes load it in
-milliseconds. ``ase-spin compile`` (:mod:`ase_spin.app.warmup`) does it ahead of
-time. Numba says nothing
+each kernel in a fresh install compiles it (how long a scene's whole set
+takes: docs/benchmarks.md, "First use: compilation"; ``benchmarks/first_use.py``)
+and writes the machine code to numba's on-disk cache; later processes load it
+from there instead of compiling. ``ase-spin compile`` (:mod:`ase_spin.app.warmup`)
+does it ahead of time. Numba says nothing
 while it compiles, so a first run looks hung. This module listens to numba's
 ``numba:compile`` event, which numba raises only when it compiles — a kernel
 found in the disk cache raises none — and prints one line to stderr the first
@@ -42,9 +42,9 @@ PACKAGE_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 #: of this package were compiled from.
 STAMP = "ase_spin-source.sha1"
 
-_MESSAGE = ("ase_spin: compiling numba kernels on first use (once per install and CPU; "
-            "10-20 s on 2 idle cores); they are cached in {where} and load in about a "
-            "second next time (ahead of time: ase-spin compile)")
+_MESSAGE = ("ase_spin: compiling numba kernels on first use (once per install and CPU, "
+            "each kernel the first time it is called); they are cached in {where} and "
+            "loaded from there next time (to compile ahead of time: ase-spin compile)")
 
 
 def _cached_ase_spin_kernel(dispatcher):

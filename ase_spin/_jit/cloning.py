@@ -44,9 +44,10 @@ def prange_only():
     allocation (``np.zeros`` of the per-thread buffers, ``.max()``, ...) into
     a parallel loop of its own, each compiled as a separate threaded function;
     the kernels here split their work into fixed chunks by hand and gain
-    nothing from those, while they doubled the compile time of the largest
-    kernels (Lennard-Jones and exchange: 2.5–3.2 s each to 1.4–1.7 s,
-    benchmarks/first_use.py). A new dict per call: numba consumes it."""
+    nothing from those, while each of them adds compile time to the largest
+    kernels (Lennard-Jones and exchange; ``benchmarks/first_use.py``,
+    docs/benchmarks.md, "First use: compilation"). A new dict per call: numba
+    consumes it."""
     return dict(prange=True, comprehension=False, reduction=False, inplace_binop=False,
                 setitem=False, numpy=False, stencil=False, fusion=False)
 

@@ -1,12 +1,14 @@
 """Threaded kernels, each with a serial twin for small systems.
 
-Every numba parallel region costs a few microseconds to start, whatever its
-size. A step of a small system (the paper's 30-atom chain, fcc Co with 500
-atoms) runs dozens of them, so there the launches cost more than the work. Each
-kernel is therefore compiled twice from one source: threaded (``prange`` over
-threads) and serial (``prange`` read as ``range``). Code that evaluates a system
-says how large it is with :func:`threads_for`; kernels called inside pick their
-twin from that.
+Every numba parallel region has a fixed cost to start (waking the worker
+threads and meeting at its barrier), whatever its size. A step of a small
+system (the paper's 30-atom chain, fcc Co with 500 atoms) runs dozens of them,
+so there the launches cost more than the work. Each kernel is therefore
+compiled twice from one source: threaded (``prange`` over threads) and serial
+(``prange`` read as ``range``). Code that evaluates a system says how large it
+is with :func:`threads_for`; kernels called inside pick their twin from that.
+The serial twins exist only for speed: ``benchmarks/small_systems.py`` shows
+what they save (docs/benchmarks.md, "Why each fast path exists").
 """
 
 from __future__ import annotations
@@ -22,13 +24,15 @@ from .cloning import prange_only, serial_twin
 __all__ = ["SERIAL_BELOW", "SERIAL_ALL_BELOW", "threads_for", "count", "small", "tiny",
            "threaded", "AdaptiveThreads"]
 
-#: Systems with fewer atoms than this run the serial twins.
+#: Systems with fewer atoms than this run the serial twins: below it the
+#: parallel regions' start-up costs more than the threads save on the light
+#: kernels (``benchmarks/small_systems.py``; docs/benchmarks.md, "Why each fast
+#: path exists").
 SERIAL_BELOW = 1500
 #: Systems with fewer atoms than this (and than :data:`SERIAL_BELOW`) run even
-#: the ``always`` kernels serially: at the paper's 30-atom chain one
-#: Lennard-Jones pass takes ~2 µs serial against ~10–17 µs threaded (the cost of
-#: starting the parallel region); fcc Co at N = 32 breaks even
-#: (``benchmarks/small_systems.py``).
+#: the ``always`` kernels serially: with so few pairs, starting the parallel
+#: region costs more than even a pair pass's work (``benchmarks/small_systems.py``;
+#: docs/benchmarks.md, "Why each fast path exists").
 SERIAL_ALL_BELOW = 64
 
 
@@ -117,9 +121,10 @@ def threaded(always=False, **replace):
     ``@threaded(reduce_threads=lambda: reduce_threads_serial)`` when it calls
     another threaded function that its serial twin must not. ``always=True``
     for kernels with enough work per call to gain from threads even in a small
-    system (pair potentials and exp() over every pair: measured at N = 500,
-    Lennard-Jones 89 against 200 µs, exchange geometry 86 against 139 µs);
-    such kernels take their thread count from :func:`all_threads`."""
+    system (pair potentials and exp() over every pair, whose work outweighs
+    the parallel region's start-up from :data:`SERIAL_ALL_BELOW` atoms on;
+    ``benchmarks/small_systems.py``); such kernels take their thread count
+    from :func:`all_threads`."""
 
     def wrap(fn):
         return _Threaded(fn, replace, always)
@@ -220,7 +225,9 @@ PROBE_BUDGET = 20.0
 #: A step more than this many times slower than the median of the last steps
 #: with its thread count is not timed unless the next one is slow as well: one
 #: such step is the operating system's (a worker thread descheduled for a time
-#: slice holds every barrier of the step), not the thread count's.
+#: slice holds every barrier of the step), not the thread count's; without this
+#: rule such steps sent runs to one thread needlessly (``benchmarks/busy_machine.py``;
+#: docs/benchmarks.md, "Why each fast path exists").
 OUTLIER = 1.5
 
 
@@ -245,6 +252,11 @@ class AdaptiveThreads:
     machine thus costs at most about what it costs a single-threaded code,
     and an idle one keeps the threads. A whole number fixes the count. Results are the same
     bit for bit whatever is chosen (see the module's docstring).
+
+    It exists only for speed: on a shared machine fixed threads wait at every
+    barrier for a descheduled worker, and one thread wastes an idle core;
+    ``benchmarks/busy_machine.py`` runs both fixed counts and this choice side
+    by side (docs/benchmarks.md, "Threads on a busy machine").
     """
 
     def __init__(self, threads=None, probe=1.0):
@@ -313,7 +325,9 @@ class AdaptiveThreads:
         """Whether to time all threads again: the probe interval has passed
         and, since the last look, other processes have left the cores free
         (else the probe is put off by another interval without running: a
-        threaded step on a busy machine costs 10–200 one-thread steps)."""
+        threaded step whose workers cannot all have a core waits at every
+        barrier for a descheduled one, and costs many one-thread steps;
+        docs/benchmarks.md, "Threads on a busy machine")."""
         now = time.perf_counter()
         if now < self._next_probe:
             return False

@@ -50,6 +50,9 @@ MIN_TIMESTEP_FS = 1e-3
 
 #: Most steps :meth:`SpinLatticeDynamics.run` takes in one block (small systems,
 #: nothing observing the run in between): an interrupt waits for at most this many.
+#: Blocks exist only for speed: in a small system the return to Python after each
+#: step costs a share of the step that a block spreads over its steps
+#: (``benchmarks/small_systems.py``; docs/benchmarks.md, "Why each fast path exists").
 QUIET_BLOCK = 256
 #: and when the adaptive thread count tries another count (a probe: it may be a
 #: bad one on a busy machine)

@@ -1,8 +1,9 @@
 """Gaussian random numbers drawn inside compiled, threaded kernels.
 
 The baths need 5 Gaussian numbers per atom and step. numpy draws them on one
-thread (about 7 ns each on this project's machine, benchmarks/bench_langevin.py),
-a large share of a thermostatted step once the rest runs on every core. Here the
+thread, a large share of a thermostatted step once the rest runs on every core
+(``benchmarks/bench_langevin.py``; docs/benchmarks.md, "Thermostat (`Langevin`):
+cost and sampling"). Here the
 k-th number of a draw is a pure function of (key, k): a counter-based
 generator (Salmon et al., SC'11, the idea behind Random123, JAX and numpy's own
 Philox), so kernels draw the numbers they need where they need them, in any
@@ -117,7 +118,9 @@ def normals(key, k0, out):
     the same bits. The quick-accept case of the ziggurat (98.8% of words) runs
     in a loop without branches, so that it runs on SIMD lanes (a loop calling
     :func:`normal`, with its rejection loop, stays scalar); the words it does
-    not accept are marked NaN and redone one by one by :func:`normal`."""
+    not accept are marked NaN and redone one by one by :func:`normal`. This
+    twin of :func:`normal` exists only for speed (``benchmarks/bench_langevin.py``;
+    docs/benchmarks.md, "Why each fast path exists", the bath kernels on SIMD lanes)."""
     m = out.shape[0]
     rejected = 0
     for j in range(m):

@@ -49,8 +49,9 @@ def _same(a, b):
     if a.shape != b.shape or a.dtype != b.dtype:
         return False
     if a.nbytes <= 8192 and a.flags.c_contiguous and b.flags.c_contiguous:
-        # small arrays: the bytes, cheaper than a compiled call (stricter too:
-        # -0.0 and 0.0 differ, so at worst a needless resync)
+        # small arrays: the bytes, cheaper than a compiled call in a small
+        # system's step (benchmarks/small_systems.py; stricter too: -0.0 and
+        # 0.0 differ, so at worst a needless resync)
         return a.tobytes() == b.tobytes()
     return kernels.same(a, b)
 

@@ -95,8 +95,9 @@ def rows_in_order(row, nbr, c, order):
     """The rows of a pair list (row pointer, partners, per-pair values ``c``)
     copied in ``order``: row a of the copy is row ``order[a]``, its pairs in
     their order. A colour-ordered sweep then reads each colour's rows as one
-    stretch of memory instead of scattered over the list (docs/benchmarks.md,
-    "Colour-ordered sweeps")."""
+    stretch of memory instead of scattered over the list: a copy made only for
+    speed (``benchmarks/frozen_before_after.py``; docs/benchmarks.md,
+    "Colour-ordered sweeps on a frozen lattice")."""
     n = len(order)
     prow = np.zeros(n + 1, dtype=np.int64)
     for a in range(n):

@@ -38,7 +38,8 @@ __all__ = ["Coupling", "BetheSlater", "Cubic", "Exchange", "ExchangeOperator",
 #: force passes recompute d from the operator's copy of the positions.
 #: Recomputing d slows a force pass (more loads and products per pair), so g is
 #: used only where memory per atom, not speed, is the limit (docs/benchmarks.md,
-#: "Why each fast path exists"; benchmarks/exchange_passes.py): it saves 16 bytes
+#: "Memory" and "Why each fast path exists"; benchmarks/memory_steps.py for the
+#: peak, benchmarks/exchange_passes.py for the passes' cost): it saves 16 bytes
 #: per pair, 2 × 144 bytes per atom of fcc Co (9 pairs each, operators at q and
 #: q̃), from the size at which CollectivePRK also keeps fewer predictor
 #: increments (collective.LARGE_SYSTEM). The results are the same bit for bit
@@ -96,8 +97,8 @@ class ExchangeOperator(SpinOperator):
         # the geometry kernel is threaded above the tiny systems (threads.tiny)
         geometry = exchange_geometry if threads.tiny() else exchange_geometry_threaded
         # as few arrays as the pieces use: each one is unboxed at every call of
-        # the fused step, a cost a small system's step feels (docs/benchmarks.md,
-        # "Why each fast path exists")
+        # the fused step, a cost a small system's step feels (benchmarks/small_systems.py;
+        # docs/benchmarks.md, "Why each fast path exists")
         return (exchange_forces, geometry, exchange_couplings,
                 (threads.count(), p.row, p.j, p.image, p.images, self.J, self.G, self.Jbar,
                  self.offset, self.params), (exchange_forces_two, exchange_add_kept))

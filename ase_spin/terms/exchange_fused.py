@@ -2,7 +2,9 @@
 systems (:meth:`~ase_spin.terms.exchange.ExchangeOperator.compiled`,
 :mod:`ase_spin.md.fused`): compiled functions calling the serial (or, for the
 geometry, threaded) twins of the exchange kernels, as the operator's methods
-call them at that size."""
+call them at that size. They exist only for the fused step's speed in small
+systems (``benchmarks/small_systems.py``; docs/benchmarks.md, "Why each fast
+path exists")."""
 
 from __future__ import annotations
 

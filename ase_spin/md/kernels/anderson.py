@@ -1,6 +1,9 @@
 """The midpoint solvers' convergence test and Anderson acceleration: the
 bookkeeping after a sweep (contraction, stopping at the tolerance or at
-round-off) and the mixing of the last iterates."""
+round-off) and the mixing of the last iterates. The acceleration exists to
+save sweeps at large steps, where plain sweeps contract slowly
+(``benchmarks/solver_choice.py``, ``benchmarks/solver.py``; docs/benchmarks.md,
+"The midpoint solver against the step size")."""
 
 from __future__ import annotations
 

@@ -110,7 +110,8 @@ def _direction(B, i):
 # form) and whose field is not zero, on SIMD lanes, then the few others one by
 # one. The first indexes flat views of the block from 0: with an offset, or
 # with 2-d indexing, LLVM does not vectorise it. The results are the same bits
-# as the one-by-one loop alone.
+# as the one-by-one loop alone: the split exists only for speed
+# (``benchmarks/bench_langevin.py``; docs/benchmarks.md, "Why each fast path exists").
 
 @nb.njit(cache=True, inline="always")
 def _rows(a, lo, m):
@@ -152,7 +153,8 @@ def bath_block(s, out, before, B, B0, w, k1, sigma, key, k2, magnetic):
         if noisy:  # (σ = 0 rows do not use theirs)
             normals(key, 2 * lo, xi)
         # out starts as s and is updated in place: with s read and out written
-        # in the loop below, LLVM leaves it scalar (docs/benchmarks.md, thermostat)
+        # in the loop below, LLVM leaves it scalar (benchmarks/bench_langevin.py;
+        # docs/benchmarks.md, "Why each fast path exists")
         for j in range(3 * m):
             of[j] = sf[j]
         rest = 0

@@ -17,8 +17,10 @@ from ..._jit.threads import threaded
 #: last digits of the increments (the midpoints are solved to ``tol``) take
 #: over, amplified by Σ|c_m| = 2^(k+1) − 1; the least-squares row, of degree 12
 #: but Σ|c_m| = 1125 instead of 8191, predicts better there, and the midpoint
-#: solve takes one sweep less per factor 1/θ (θ the contraction per sweep); see
-#: docs/benchmarks.md, "The predictor's least-squares row". Rows 12–14 are
+#: solve takes one sweep less per factor 1/θ (θ the contraction per sweep). The
+#: deep history and the least-squares row exist only to save sweeps:
+#: ``benchmarks/predictor.py`` shows each row's miss and the step's cost
+#: (docs/benchmarks.md, "The predictor's least-squares row"). Rows 12–14 are
 #: order 11 again: what the last row falls back to while fewer than 16
 #: increments are kept (exact orders 12–14 would only amplify the noise more).
 PREDICTOR_DEPTH = 16
@@ -100,8 +102,9 @@ def extrapolate(history, order, base):
 
 def increment(W, s, out=None):
     """W − s (a midpoint's increment over the spins at the start of its step),
-    into ``out`` if given (the predictor reuses its oldest increment: at 10⁶
-    atoms each (N, 3) array is 24 MB)."""
+    into ``out`` if given (the predictor reuses its oldest increment: each
+    (N, 3) array of float64 is 24 bytes an atom, a new one per step would be
+    one more such allocation)."""
     if out is None:
         out = np.empty_like(W)
     _increment(W, s, out)
@@ -132,8 +135,9 @@ def _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, h12,
 #: atoms :func:`extrapolate_rows` takes its blocks of flat loops (the arrays in
 #: cache: the arithmetic is the cost, and it vectorises); outside, one loop over
 #: rows (fewer atoms: the blocks' scratch arrays cost more than they save; more:
-#: the arrays are streamed from memory, and the row loop measured faster there;
-#: docs/benchmarks.md, "The predictor's least-squares row").
+#: the arrays are streamed from memory, and the threaded row loop is the faster
+#: there). The flat blocks exist only for speed (``benchmarks/predictor.py``,
+#: ``benchmarks/small_systems.py``; docs/benchmarks.md, "Why each fast path exists").
 _EXTRAPOLATE_FLAT = (threads.SERIAL_ALL_BELOW, threads.SERIAL_BELOW)
 #: Atoms per block of the flat loops.
 _EXTRAPOLATE_BLOCK = 256
@@ -258,9 +262,10 @@ def best_order_rows(n, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, h12, h1
     that call's h_0, bit for bit, and n is one more or, full, the same), the
     new column follows from it, ∇^k h_0 = ∇^{k−1} h_0 − ∇^{k−1} h_1, with
     ∇^{k−1} h_1 the kept ∇^{k−1} h_0: the same subtractions the whole table
-    makes, so the same bits, in O(n) instead of O(n²) (at 500 atoms the whole
-    table took ~5 µs a step, most of the predictor's bookkeeping). Else the
-    whole table. Either way ``kept`` then holds this call's column."""
+    makes, so the same bits, in O(n) instead of O(n²) (the whole table, every
+    step, was most of the predictor's bookkeeping in a small system's step;
+    ``benchmarks/small_systems.py`` times that step). Else the whole table.
+    Either way ``kept`` then holds this call's column."""
     m = 3 * len(rows)
     w = np.empty(m)
     col = np.empty(m)  # ∇^0 h_0 at the sampled rows

@@ -1,7 +1,16 @@
 """The midpoint solvers: W of the spherical midpoint rule,
 W = normalise(s + s̃), s̃ = s + c W × B̄(W), solved by Jacobi or locally exact
 sweeps with optional Anderson acceleration, over one linear pair operator
-(B̄_i = Σ_j c_ij W_j, in one compiled loop) or any spin operators."""
+(B̄_i = Σ_j c_ij W_j, in one compiled loop) or any spin operators.
+
+All solve the same equation to the same tolerance; the locally exact sweeps
+and Anderson's acceleration exist because they take fewer sweeps than Jacobi
+from moderate steps on and still converge at steps where Jacobi stops
+contracting (``benchmarks/solver.py`` for the largest step,
+``benchmarks/solver_choice.py`` for the cost of each; docs/benchmarks.md, "The
+midpoint solver against the step size"). The colour-ordered sweeps exist only
+to save sweeps on a frozen lattice (``benchmarks/frozen_before_after.py``;
+docs/benchmarks.md, "Colour-ordered sweeps on a frozen lattice")."""
 
 from __future__ import annotations
 
