@@ -701,8 +701,8 @@ def test_predictor_depth_by_stages_and_size():
 
 @pytest.mark.parametrize("n", [30, 500, 2000])
 def test_extrapolation_is_the_ordered_sum_to_the_bit(n):
-    """kernels.extrapolate (the loop over rows below 64 and from 1 500 atoms,
-    flat blocks between) gives normalise(base + (c_0 h_0 + … + c_15 h_15)),
+    """kernels.extrapolate (one loop over rows, serial or threaded) gives
+    normalise(base + (c_0 h_0 + … + c_15 h_15)),
     each sum taken in that order and rounded as numpy rounds it: bit for bit,
     for the least-squares row and an exact order."""
     from collections import deque

@@ -7,7 +7,6 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..._jit import threads
 from ..._jit.threads import threaded
 
 #: Midpoints the predictor keeps per stage at most: extrapolation orders 0 to
@@ -131,81 +130,27 @@ def _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, h12,
             + c[15] * h15[i, k])
 
 
-#: From :data:`~ase_spin._jit.threads.SERIAL_ALL_BELOW` to :data:`~ase_spin._jit.threads.SERIAL_BELOW`
-#: atoms :func:`extrapolate_rows` takes its blocks of flat loops (the arrays in
-#: cache: the arithmetic is the cost, and it vectorises); outside, one loop over
-#: rows (fewer atoms: the blocks' scratch arrays cost more than they save; more:
-#: the arrays are streamed from memory, and the threaded row loop is the faster
-#: there). The flat blocks exist only for speed (``benchmarks/predictor.py``,
-#: ``benchmarks/small_systems.py``; docs/benchmarks.md, "Why each fast path exists").
-_EXTRAPOLATE_FLAT = (threads.SERIAL_ALL_BELOW, threads.SERIAL_BELOW)
-#: Atoms per block of the flat loops.
-_EXTRAPOLATE_BLOCK = 256
-
-
 @threaded()
 def extrapolate_rows(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10, h11, h12, h13, h14, h15,
                  base, out):
     """out = normalise(base + Σ_m c_m h_m) row by row (C-contiguous (n, 3)
-    arrays). A small system (:data:`_EXTRAPOLATE_FLAT`) a block of atoms at a
-    time: base + Σ over the block's flat values in one straight loop over the
-    16 streams, then the norms, then the rows divided by them — loops that
-    vectorise, where one loop per row does not; others in one loop over rows.
-    Each value is computed as :func:`_extrapolated_deep` computes it either
-    way: the same bits."""
+    arrays), each value as :func:`_extrapolated_deep` computes it."""
     n = h0.shape[0]
-    if not _EXTRAPOLATE_FLAT[0] <= n < _EXTRAPOLATE_FLAT[1]:
-        for i in nb.prange(n):
-            x = base[i, 0] + _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10,
-                                                h11, h12, h13, h14, h15, i, 0)
-            y = base[i, 1] + _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10,
-                                                h11, h12, h13, h14, h15, i, 1)
-            z = base[i, 2] + _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10,
-                                                h11, h12, h13, h14, h15, i, 2)
-            norm = np.sqrt(x * x + y * y + z * z)
-            if norm > 0.0:
-                x /= norm
-                y /= norm
-                z /= norm
-            out[i, 0] = x
-            out[i, 1] = y
-            out[i, 2] = z
-        return
-    f0, f1, f2, f3 = h0.reshape(-1), h1.reshape(-1), h2.reshape(-1), h3.reshape(-1)
-    f4, f5, f6, f7 = h4.reshape(-1), h5.reshape(-1), h6.reshape(-1), h7.reshape(-1)
-    f8, f9, f10, f11 = h8.reshape(-1), h9.reshape(-1), h10.reshape(-1), h11.reshape(-1)
-    f12, f13, f14, f15 = h12.reshape(-1), h13.reshape(-1), h14.reshape(-1), h15.reshape(-1)
-    fb = base.reshape(-1)
-    c0, c1, c2, c3, c4, c5, c6, c7 = c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]
-    c8, c9, c10, c11, c12, c13, c14, c15 = (c[8], c[9], c[10], c[11], c[12], c[13], c[14],
-                                            c[15])
-    for b in nb.prange((n + _EXTRAPOLATE_BLOCK - 1) // _EXTRAPOLATE_BLOCK):
-        lo = b * _EXTRAPOLATE_BLOCK
-        hi = min(n, lo + _EXTRAPOLATE_BLOCK)
-        acc = np.empty(3 * (hi - lo))
-        norms = np.empty(hi - lo)
-        for a in range(3 * (hi - lo)):
-            x = 3 * lo + a
-            acc[a] = fb[x] + (c0 * f0[x] + c1 * f1[x] + c2 * f2[x] + c3 * f3[x]
-                              + c4 * f4[x] + c5 * f5[x] + c6 * f6[x] + c7 * f7[x]
-                              + c8 * f8[x] + c9 * f9[x] + c10 * f10[x] + c11 * f11[x]
-                              + c12 * f12[x] + c13 * f13[x] + c14 * f14[x] + c15 * f15[x])
-        for a in range(hi - lo):
-            x = acc[3 * a]
-            y = acc[3 * a + 1]
-            z = acc[3 * a + 2]
-            norms[a] = np.sqrt(x * x + y * y + z * z)
-        for a in range(hi - lo):
-            norm = norms[a]
-            i = lo + a
-            if norm > 0.0:
-                out[i, 0] = acc[3 * a] / norm
-                out[i, 1] = acc[3 * a + 1] / norm
-                out[i, 2] = acc[3 * a + 2] / norm
-            else:
-                out[i, 0] = acc[3 * a]
-                out[i, 1] = acc[3 * a + 1]
-                out[i, 2] = acc[3 * a + 2]
+    for i in nb.prange(n):
+        x = base[i, 0] + _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10,
+                                            h11, h12, h13, h14, h15, i, 0)
+        y = base[i, 1] + _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10,
+                                            h11, h12, h13, h14, h15, i, 1)
+        z = base[i, 2] + _extrapolated_deep(c, h0, h1, h2, h3, h4, h5, h6, h7, h8, h9, h10,
+                                            h11, h12, h13, h14, h15, i, 2)
+        norm = np.sqrt(x * x + y * y + z * z)
+        if norm > 0.0:
+            x /= norm
+            y /= norm
+            z /= norm
+        out[i, 0] = x
+        out[i, 1] = y
+        out[i, 2] = z
 
 
 @nb.njit(cache=True, inline="always")
