@@ -30,7 +30,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
 
 import test_langevin as tl  # noqa: E402
-from ase_spin.md import langevin  # noqa: E402
+from ase_spin.md import baths, langevin  # noqa: E402
 from machine import describe  # noqa: E402
 
 
@@ -44,7 +44,7 @@ def main(argv=None):
     import warnings
     warnings.simplefilter("ignore")
     plain = lambda d: np.sqrt(2.0 * d)  # noqa: E731
-    damp_from = langevin.damp_from
+    damp_from = baths.damp_from
 
     def no_corrector(start, B, k, magnetic, out, y0=None, c=None, kick=None, keep=None):
         # keep the predicted spins y0: damping about the bath's first fields only
@@ -60,7 +60,7 @@ def main(argv=None):
             if variant == "no corrector" and not kw:
                 continue
             if variant == "no corrector":
-                langevin.damp_from = no_corrector
+                baths.damp_from = no_corrector
             amp = plain if variant.startswith("sigma") else None
             try:
                 out = []
@@ -74,7 +74,7 @@ def main(argv=None):
                                       zip(np.atleast_1d(b), np.atleast_1d(se)))
                           + f"  ({time.perf_counter() - t0:.0f} s)", flush=True)
             finally:
-                langevin.damp_from = damp_from
+                baths.damp_from = damp_from
             for (h1, b1, _), (h2, b2, _) in zip(out, out[1:]):
                 rows.append((case, variant, h1, h2, np.log2(np.abs(b1) / np.abs(b2))))
     # (c) the end field from the midpoint fields (exchange alone, order 2, steps

@@ -142,7 +142,7 @@ def sublattice_temperatures(wrong_variance=False):
     """Spin temperatures (estimates, standard errors) of the μ = 1 and μ = 7
     sublattices of the test below; ``wrong_variance``: one noise variance for
     every spin (the mean rate's) instead of each spin's own."""
-    from ase_spin.md import langevin
+    from ase_spin.md import baths as langevin  # its half steps draw the noise
 
     atoms = bulk("Co", "fcc", a=3.54, cubic=True).repeat(2)
     mus = np.where(np.arange(len(atoms)) % 2 == 0, 1.0, 7.0)
@@ -504,7 +504,7 @@ def stationary_bias(omega_h, per=1024, steps=1500, amplitude=None, dimer_j=0.0, 
     errors from the spread of the per-spin time averages), sampled every
     ``interval`` steps. ``amplitude``: replaces the noise amplitude."""
     from ase_spin import Cubic
-    from ase_spin.md import langevin
+    from ase_spin.md import baths as langevin  # its half steps draw the noise
 
     T = 20.0
     kT = units.kB * T
