@@ -175,6 +175,18 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
 
 
 @nb.njit(cache=True, inline="always")
+def push_increments(ring, heads, counts, increments):
+    """Each stage's increment of a whole step into its ring buffer (stage,
+    slot, n, 3): the newest at the slot after ``heads``, ``counts`` up to the
+    buffer's depth."""
+    depth = ring.shape[1]
+    for stage in range(ring.shape[0]):
+        heads[stage] = (heads[stage] + 1) % depth
+        ring[stage, heads[stage]] = increments[stage]
+        counts[stage] = min(counts[stage] + 1, depth)
+
+
+@nb.njit(cache=True, inline="always")
 def _newest(ring, stage, head, count, k):
     """The k-th newest increment of a stage's ring buffer (the newest where
     fewer are kept: as kernels.newest_first pads)."""
@@ -219,7 +231,6 @@ def run_steps(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry
     operators swapped roles, sweeps in all, sweeps and geometries of the last
     step)."""
     nstages = gammas.shape[0]
-    depth = ring.shape[1]
     saved_p = np.empty_like(carry_p)
     increments = np.empty((nstages,) + s.shape)
     field = np.empty_like(s)  # the midpoint fields (not used here)
@@ -279,9 +290,7 @@ def run_steps(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry
             orders[stage] = new_orders[stage]
             rounds[stage] = new_rounds[stage]
             one_sweep[stage] = new_one_sweep[stage]
-            heads[stage] = (heads[stage] + 1) % depth
-            ring[stage, heads[stage]] = increments[stage]
-            counts[stage] = min(counts[stage] + 1, depth)
+        push_increments(ring, heads, counts, increments)
         if nstages % 2 == 1:
             op_q, op_t = op_t, op_q
             swapped = not swapped
@@ -318,7 +327,6 @@ def run_frozen_steps(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, m
     buffer, sweeps in all, sweeps of the last step)."""
     no_field = np.zeros((0, 3))  # kernels.NO_FIELD: no midpoint fields wanted
     nstages = gammas.shape[0]
-    depth = ring.shape[1]
     increments = np.empty((nstages,) + s.shape)
     new_theta = theta.copy()
     new_orders = orders.copy()
@@ -387,9 +395,7 @@ def run_frozen_steps(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, m
             one_sweep[stage] = new_one_sweep[stage]
             sweep_order[stage] = new_sweep_order[stage]
             theta_index[stage] = new_theta_index[stage]
-            heads[stage] = (heads[stage] + 1) % depth
-            ring[stage, heads[stage]] = increments[stage]
-            counts[stage] = min(counts[stage] + 1, depth)
+        push_increments(ring, heads, counts, increments)
         done += 1
         sweeps += its_step
         last_sweeps = its_step
