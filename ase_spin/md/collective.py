@@ -46,14 +46,16 @@ def predictor_depth(stages, natoms=None):
     """Increments kept per stage for the predictor: all
     :data:`~ase_spin.md.kernels.PREDICTOR_DEPTH` (16: extrapolation up to order
     11, and a least-squares fit through all 16) for the one-stage second-order
-    step (384 bytes per atom; each order is ~10× more accurate than the one
-    below at 0.1 fs until round-off takes over, and the solve takes about one
-    sweep less per factor 30), fewer for the compositions (5 stages: 6 each,
+    step (384 bytes per atom; each order is more accurate than the one below
+    at small steps until round-off takes over, and a better guess leaves the
+    solve fewer sweeps: ``benchmarks/predictor.py``; docs/benchmarks.md, "The
+    predictor's least-squares row"), fewer for the compositions (5 stages: 6 each,
     9 stages: 4 each): at most 36 arrays of (N, 3) for all stages, 864 bytes per
     atom, what order 6 kept before (4 per stage). Below
     :data:`LEAST_SQUARES_FROM` atoms 12 (no least-squares row). From
-    :data:`LARGE_SYSTEM` atoms, 4 per stage (96 bytes per atom and stage; ~6
-    more sweeps per step at 0.1 fs)."""
+    :data:`LARGE_SYSTEM` atoms, 4 per stage (96 bytes per atom and stage; more
+    sweeps a step, for memory: ``benchmarks/memory_steps.py``; docs/benchmarks.md,
+    "Memory")."""
     if natoms is not None and natoms >= LARGE_SYSTEM:
         return 4
     deepest = kernels.PREDICTOR_DEPTH
@@ -281,7 +283,7 @@ class CollectivePRK(SpinLatticeDynamics):
             # max|q̃ − q̃ of the last iteration|
             # from the second round on, into the last round's P and carry and a
             # q̃ buffer other than the one compared with: no new arrays per
-            # round (at 10⁶ atoms each is 24 MB at the step's peak memory)
+            # round (each is 24 bytes an atom at the step's peak memory)
             out = None
             if qt_used is not None and not self.atoms.constraints:
                 if spare is None or spare is qt_used:

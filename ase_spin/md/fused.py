@@ -93,11 +93,11 @@ _UNSEEN = object()
 
 
 #: Steps a run must still have ahead for a system of 64–1 500 atoms to compile its
-#: fused step when numba has not cached it yet: the compilation takes ~15 s once
-#: per install (benchmarks/first_use.py), which a short first run should not pay;
-#: a long run does, and every later run loads the step from the cache and saves
-#: ~80 µs per step at N = 500 (benchmarks/small_systems.py). Below 64 atoms it is
-#: always used.
+#: fused step when numba has not cached it yet: its compilation, once per install
+#: (``benchmarks/first_use.py``), is more than a short first run would save; a
+#: long run repays it, and every later run loads the step from the cache and
+#: saves a large part of a small system's step (``benchmarks/small_systems.py``;
+#: docs/benchmarks.md, "Why each fast path exists"). Below 64 atoms it is always used.
 FUSE_AFTER_STEPS = 20_000
 
 
@@ -335,7 +335,7 @@ def collective_block(dyn, steps):
         return 0, 0, 0, 0
     step, lattice_data, data_q, data_t, merge = got
     run = _runner(step)
-    # its compilation (~5 s: the step's code is compiled again inside it) is
+    # its compilation (the step's code is compiled again inside it) is
     # paid as the fused step's is, whatever the size
     if not (_pays(dyn, step) and _pays(dyn, run)):
         return 0, 0, 0, 0

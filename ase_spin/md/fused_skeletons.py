@@ -38,7 +38,7 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
     than ``radius`` or q̃ is farther than ``radius`` from ``reference`` or
     ``fine_radius`` from ``fine_reference``, where the pair list and the
     sub-lists hold: NeighborCache; separate arguments, not tuples of arrays,
-    which cost the block of steps 5 %). The first solve stops at
+    which cost the block of steps time: ``benchmarks/small_systems.py``). The first solve stops at
     ``first_tol``, the others at ``tol`` (policy.first_tolerance).
     ``memory``, ``local``: the midpoint solver (kernels.midpoint_solve_half);
     a solve contracting by more than ``switch`` per sweep also gives up, so

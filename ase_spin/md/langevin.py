@@ -25,8 +25,9 @@ __all__ = ["Langevin", "relax_spins", "LangevinLogger"]
 
 #: Default midpoint tolerance with a bath at T > 0 acting: the noise moves each
 #: spin by ~√(2Dh) per step and the predictor cannot foresee it, so round-off
-#: (CollectivePRK's 1e-15) costs ~3 more sweeps per step (5 instead of 2: fcc Co,
-#: 0.1 fs) for no difference that the run can show (E_tot − E_bath and the sampling: docs/thermostats.md).
+#: (CollectivePRK's 1e-15) costs more sweeps a step for no difference that the
+#: run can show (E_tot − E_bath and the sampling: docs/thermostats.md;
+#: ``benchmarks/bench_langevin.py``).
 NOISY_TOL = 1e-10
 #: The remainder predictor with a noisy spin bath, row m (newest first): the
 #: last remainder plus the mean of the last m increments (see Langevin._predict).
@@ -145,7 +146,7 @@ class Langevin(BathHalfSteps, CollectivePRK):
         The midpoint iteration's tolerance, as for :class:`CollectivePRK`;
         default :data:`NOISY_TOL` (1e-10) when a bath at T > 0 acts at
         construction, else round-off (1e-15): the noise the predictor cannot
-        foresee would make round-off cost ~3 more sweeps a step, with no
+        foresee would make round-off cost more sweeps a step, with no
         difference in E_tot − E_bath or the sampling (docs/thermostats.md).
     hbar, precession, gyromagnetic, g, order, max_iter, lattice, trajectory,
     logfile, loginterval, **kwargs
