@@ -1,6 +1,26 @@
 """Per-thread scatter and its reductions: how threaded kernels split rows of
 pairs into chunks and sum per-thread buffers, in a fixed order (the same bits
-whatever the number of threads)."""
+whatever the number of threads).
+
+The pair kernels over half lists (Lennard-Jones, EAM, exchange) share one
+skeleton: rows in ``nthreads`` chunks of about equal pair count
+(:func:`balanced_chunks`), each chunk scattering into buffers of its own
+(:func:`scatter_buffers`, :func:`thread_buffer`; a pair's share and each
+row's own sums added with :func:`add_row`, :func:`sub_row`, or
+:func:`add_to` where a row is its chunk's alone), each chunk's energy and
+virial kept apart (:func:`store_sums`), then the buffers summed in thread
+order (:func:`reduce_scatter`). The pieces are inlined (``inline="always"``):
+a kernel runs the same operations in the same order as if written out.
+
+Those called per row or pair take arrays and hold no branch, and the
+request's flags stay in the kernels (``if want_forces: add_row(...)``): an
+array passed into an inlined function with branches costs a reference-count
+increment and decrement per call, which numba's pruning does not remove (the
+serial twins of the exchange passes ran 10–45 % slower with the row's
+``if want_...`` inside one helper). A kernel with a serial twin passes its
+own ``reduce_threads`` to :func:`reduce_scatter` (the twin's is
+:func:`reduce_threads_serial`; a name looked up here would stay the threaded
+one)."""
 
 from __future__ import annotations
 
@@ -9,7 +29,9 @@ import numpy as np
 
 from .cloning import prange_only, serial_twin
 
-__all__ = ["balanced_chunks", "reduce_threads", "reduce_threads_serial", "sum_over_threads"]
+__all__ = ["balanced_chunks", "reduce_threads", "reduce_threads_serial", "sum_over_threads",
+           "thread_buffer", "scatter_buffers", "add_to", "add_row", "sub_row", "store_sums",
+           "reduce_scatter"]
 
 
 @nb.njit(cache=True)
@@ -67,3 +89,69 @@ def sum_over_threads(acc):
             out[c] += acc[t, c]
     return out
 
+
+@nb.njit(cache=True, inline="always")
+def thread_buffer(nthreads, n, want, columns):
+    """Zeros (nthreads, n, columns): a per-thread scatter buffer for n atoms,
+    with no rows unless ``want``."""
+    return np.zeros((nthreads, n if want else 0, columns))
+
+
+@nb.njit(cache=True, inline="always")
+def scatter_buffers(row, nthreads, want_forces, want_energies):
+    """(bounds, fbuf, ebuf, acc) of a pair kernel over a half list: the chunks'
+    rows (:func:`balanced_chunks`), per-thread forces (t, n, 3) and energies
+    (t, n, 1) (no rows unless wanted) and per-thread sums (t, 7): energy and
+    virial in Voigt order (:func:`store_sums`)."""
+    n = len(row) - 1
+    bounds = balanced_chunks(row, nthreads)
+    fbuf = thread_buffer(nthreads, n, want_forces, 3)
+    ebuf = thread_buffer(nthreads, n, want_energies, 1)
+    acc = np.zeros((nthreads, 7))
+    return bounds, fbuf, ebuf, acc
+
+
+@nb.njit(cache=True, inline="always")
+def add_to(out, i, x, y, z):
+    """out[i, 0:3] += (x, y, z): a row's sums where it alone writes (a full list)."""
+    out[i, 0] += x
+    out[i, 1] += y
+    out[i, 2] += z
+
+
+@nb.njit(cache=True, inline="always")
+def add_row(buf, t, i, col, x, y, z):
+    """buf[t, i, col:col + 3] += (x, y, z)."""
+    buf[t, i, col] += x
+    buf[t, i, col + 1] += y
+    buf[t, i, col + 2] += z
+
+
+@nb.njit(cache=True, inline="always")
+def sub_row(buf, t, i, col, x, y, z):
+    """buf[t, i, col:col + 3] −= (x, y, z)."""
+    buf[t, i, col] -= x
+    buf[t, i, col + 1] -= y
+    buf[t, i, col + 2] -= z
+
+
+@nb.njit(cache=True, inline="always")
+def store_sums(acc, t, e, vxx, vyy, vzz, vyz, vxz, vxy):
+    """acc[t] = (E, W in Voigt order xx yy zz yz xz xy): chunk t's sums."""
+    acc[t, 0] = e
+    acc[t, 1] = vxx
+    acc[t, 2] = vyy
+    acc[t, 3] = vzz
+    acc[t, 4] = vyz
+    acc[t, 5] = vxz
+    acc[t, 6] = vxy
+
+
+@nb.njit(cache=True, inline="always")
+def reduce_scatter(reduce, fbuf, forces, ebuf, energies, acc):
+    """forces += Σ_t fbuf[t], energies += Σ_t ebuf[t] (by ``reduce``: the
+    calling kernel's reduce_threads, threaded or serial), and returns
+    Σ_t acc[t] (:func:`sum_over_threads`)."""
+    reduce(fbuf, forces)
+    reduce(ebuf, energies.reshape((energies.shape[0], 1)))
+    return sum_over_threads(acc)

@@ -10,8 +10,9 @@ import numba as nb
 import numpy as np
 
 from .._jit import threads
-from .._jit.reductions import (balanced_chunks, reduce_threads, reduce_threads_serial,
-                               sum_over_threads)
+from .._jit.reductions import (add_row, balanced_chunks, reduce_scatter, reduce_threads,
+                               reduce_threads_serial, scatter_buffers, store_sums, sub_row,
+                               thread_buffer)
 from .._jit.threads import threaded
 from ..neighbors import separation
 from .base import Term
@@ -244,9 +245,8 @@ def _density_kernel(nthreads, pos, row, nbr, image, images, types, rhor, t_rho, 
     Spline value as LAMMPS's, ((c3 p + c4) p + c5) p + c6. Threads take runs
     of rows of equal pair count and scatter into their own buffers, summed at
     the end."""
-    n = len(row) - 1
     bounds = balanced_chunks(row, nthreads)
-    rbuf = np.zeros((nthreads, n, 1))
+    rbuf = thread_buffer(nthreads, len(row) - 1, True, 1)
     single = t_rho.shape[0] == 1  # one element: no gather of the neighbour's type
     for c in nb.prange(nthreads):
         for i in range(bounds[c], bounds[c + 1]):
@@ -314,27 +314,14 @@ def _pair_kernel(nthreads, pos, row, nbr, image, images, types, rhor, z2r, t_rho
     W += (ψ'/r) d_ij ⊗ d_ij. Returns (Σ φ, W in Voigt order).
 
     Spline derivative as LAMMPS's, (c0 p + c1) p + c2."""
-    n = len(row) - 1
-    bounds = balanced_chunks(row, nthreads)
-    fbuf = np.zeros((nthreads, n if want_forces else 0, 3))
-    ebuf = np.zeros((nthreads, n if want_energies else 0, 1))
-    acc = np.zeros((nthreads, 7))
+    bounds, fbuf, ebuf, acc = scatter_buffers(row, nthreads, want_forces, want_energies)
     need_derivative = want_forces or want_virial
     single = t_z2r.shape[0] == 1  # one element: no gather of the neighbour's type
     for c in nb.prange(nthreads):
-        e = 0.0
-        vxx = 0.0
-        vyy = 0.0
-        vzz = 0.0
-        vyz = 0.0
-        vxz = 0.0
-        vxy = 0.0
+        e = vxx = vyy = vzz = vyz = vxz = vxy = 0.0
         for i in range(bounds[c], bounds[c + 1]):
             ti = types[i]
-            fx = 0.0
-            fy = 0.0
-            fz = 0.0
-            ei = 0.0
+            fx = fy = fz = ei = 0.0
             fp_i = fp[i]
             for k in range(row[i], row[i + 1]):
                 j = nbr[k]
@@ -366,9 +353,7 @@ def _pair_kernel(nthreads, pos, row, nbr, image, images, types, rhor, z2r, t_rho
                         fx += gx
                         fy += gy
                         fz += gz
-                        fbuf[c, j, 0] -= gx
-                        fbuf[c, j, 1] -= gy
-                        fbuf[c, j, 2] -= gz
+                        sub_row(fbuf, c, j, 0, gx, gy, gz)
                     if want_virial:
                         vxx += gx * dx
                         vyy += gy * dy
@@ -377,19 +362,9 @@ def _pair_kernel(nthreads, pos, row, nbr, image, images, types, rhor, z2r, t_rho
                         vxz += gx * dz
                         vxy += gx * dy
             if want_forces:
-                fbuf[c, i, 0] += fx
-                fbuf[c, i, 1] += fy
-                fbuf[c, i, 2] += fz
+                add_row(fbuf, c, i, 0, fx, fy, fz)
             if want_energies:
                 ebuf[c, i, 0] += 0.5 * ei
             e += ei
-        acc[c, 0] = e
-        acc[c, 1] = vxx
-        acc[c, 2] = vyy
-        acc[c, 3] = vzz
-        acc[c, 4] = vyz
-        acc[c, 5] = vxz
-        acc[c, 6] = vxy
-    reduce_threads(fbuf, forces)
-    reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
-    return sum_over_threads(acc)
+        store_sums(acc, c, e, vxx, vyy, vzz, vyz, vxz, vxy)
+    return reduce_scatter(reduce_threads, fbuf, forces, ebuf, energies, acc)

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .._jit.reductions import (balanced_chunks, reduce_threads, reduce_threads_serial,
-                               sum_over_threads)
+from .._jit.reductions import (add_row, reduce_scatter, reduce_threads,
+                               reduce_threads_serial, scatter_buffers, store_sums, thread_buffer)
 from .._jit.threads import threaded
 from ..neighbors import separation
 from .couplings import FORM, FORM_BETHE_SLATER, FORM_CUBIC, P0, P1, P2, RC2
@@ -303,20 +303,10 @@ def direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B,
 
     Per-thread buffers as in the Lennard-Jones kernel.
     """
-    n = len(row) - 1
-    bounds = balanced_chunks(row, nthreads)
-    bbuf = np.zeros((nthreads, n if want_b else 0, 3))
-    fbuf = np.zeros((nthreads, n if want_f else 0, 3))
-    ebuf = np.zeros((nthreads, n if want_energies else 0, 1))
-    acc = np.zeros((nthreads, 7))
+    bounds, fbuf, ebuf, acc = scatter_buffers(row, nthreads, want_f, want_energies)
+    bbuf = thread_buffer(nthreads, len(row) - 1, want_b, 3)
     for t in nb.prange(nthreads):
-        e = 0.0
-        vxx = 0.0
-        vyy = 0.0
-        vzz = 0.0
-        vyz = 0.0
-        vxz = 0.0
-        vxy = 0.0
+        e = vxx = vyy = vzz = vyz = vxz = vxy = 0.0
         for i in range(bounds[t], bounds[t + 1]):
             if (i - bounds[t]) % _GEOMETRY_BLOCK == 0:  # the next block's exponentials
                 k0 = row[i]
@@ -326,13 +316,8 @@ def direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B,
             sx = s[i, 0]
             sy = s[i, 1]
             sz = s[i, 2]
-            bx = 0.0
-            by = 0.0
-            bz = 0.0
-            fx = 0.0
-            fy = 0.0
-            fz = 0.0
-            ei = 0.0
+            bx = by = bz = 0.0
+            fx = fy = fz = ei = 0.0
             for k in range(row[i], row[i + 1]):
                 j = nbr[k]
                 tj = types[j]
@@ -350,9 +335,7 @@ def direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B,
                     bx += Jk * ux
                     by += Jk * uy
                     bz += Jk * uz
-                    bbuf[t, j, 0] += Jk * sx
-                    bbuf[t, j, 1] += Jk * sy
-                    bbuf[t, j, 2] += Jk * sz
+                    add_row(bbuf, t, j, 0, Jk * sx, Jk * sy, Jk * sz)
                 wg = w * g
                 if want_f:
                     gx = wg * dx
@@ -361,9 +344,7 @@ def direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B,
                     fx -= gx
                     fy -= gy
                     fz -= gz
-                    fbuf[t, j, 0] += gx
-                    fbuf[t, j, 1] += gy
-                    fbuf[t, j, 2] += gz
+                    add_row(fbuf, t, j, 0, gx, gy, gz)
                 if want_energies:
                     ebuf[t, j, 0] -= 0.5 * Jk * w
                 if want_virial:
@@ -374,24 +355,12 @@ def direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B,
                     vxz -= wg * dx * dz
                     vxy -= wg * dx * dy
             if want_b:
-                bbuf[t, i, 0] += bx
-                bbuf[t, i, 1] += by
-                bbuf[t, i, 2] += bz
+                add_row(bbuf, t, i, 0, bx, by, bz)
             if want_f:
-                fbuf[t, i, 0] += fx
-                fbuf[t, i, 1] += fy
-                fbuf[t, i, 2] += fz
+                add_row(fbuf, t, i, 0, fx, fy, fz)
             if want_energies:
                 ebuf[t, i, 0] += 0.5 * ei
             e += ei
-        acc[t, 0] = e
-        acc[t, 1] = vxx
-        acc[t, 2] = vyy
-        acc[t, 3] = vzz
-        acc[t, 4] = vyz
-        acc[t, 5] = vxz
-        acc[t, 6] = vxy
-    reduce_threads(fbuf, F)
+        store_sums(acc, t, e, vxx, vyy, vzz, vyz, vxz, vxy)
     reduce_threads(bbuf, B)
-    reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
-    return sum_over_threads(acc)
+    return reduce_scatter(reduce_threads, fbuf, F, ebuf, energies, acc)

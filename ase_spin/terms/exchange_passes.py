@@ -9,8 +9,9 @@ import numba as nb
 import numpy as np
 
 from .._jit.cloning import kernel_twin
-from .._jit.reductions import (balanced_chunks, reduce_threads, reduce_threads_serial,
-                               sum_over_threads)
+from .._jit.reductions import (add_row, add_to, balanced_chunks, reduce_scatter,
+                               reduce_threads, reduce_threads_serial, scatter_buffers,
+                               store_sums, sum_over_threads, thread_buffer)
 from .._jit.threads import threaded
 from ..neighbors import separation
 
@@ -86,13 +87,7 @@ def _spin_pass(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B, F, e
     need_dot = want_f or want_energy or want_energies or want_virial
     need_d = _FORMED
     for t in nb.prange(nthreads):
-        e = 0.0
-        vxx = 0.0
-        vyy = 0.0
-        vzz = 0.0
-        vyz = 0.0
-        vxz = 0.0
-        vxy = 0.0
+        e = vxx = vyy = vzz = vyz = vxz = vxy = 0.0
         for i in range(bounds[t], bounds[t + 1]):
             sx = s[i, 0]
             sy = s[i, 1]
@@ -103,13 +98,8 @@ def _spin_pass(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B, F, e
                 zi = pos[i, 2]
             else:
                 xi = yi = zi = 0.0
-            bx = 0.0
-            by = 0.0
-            bz = 0.0
-            fx = 0.0
-            fy = 0.0
-            fz = 0.0
-            ei = 0.0
+            bx = by = bz = 0.0
+            fx = fy = fz = ei = 0.0
             for k in range(row[i], row[i + 1]):
                 j = nbr[k]
                 Jk = J[k]
@@ -149,24 +139,14 @@ def _spin_pass(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B, F, e
                         vxz += h * Gx * dz
                         vxy += h * Gx * dy
             if want_b:
-                B[i, 0] += bx
-                B[i, 1] += by
-                B[i, 2] += bz
+                add_to(B, i, bx, by, bz)
             if want_f:
-                F[i, 0] += fx
-                F[i, 1] += fy
-                F[i, 2] += fz
+                add_to(F, i, fx, fy, fz)
             if want_energies:
                 energies[i] += ei
             if want_energy:
                 e += ei
-        acc[t, 0] = e
-        acc[t, 1] = vxx
-        acc[t, 2] = vyy
-        acc[t, 3] = vzz
-        acc[t, 4] = vyz
-        acc[t, 5] = vxz
-        acc[t, 6] = vxy
+        store_sums(acc, t, e, vxx, vyy, vzz, vyz, vxz, vxy)
     out = sum_over_threads(acc)
     return out[0], out[1], out[2], out[3], out[4], out[5], out[6]
 
@@ -179,29 +159,19 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
     B_j += J u_i, F_i −= w G, F_j += w G, e_i, e_j −= ½ J w, W −= w G ⊗ d."""
     if _WANT is not None:  # a twin for one request: the flags are constants
         want_b, want_f, want_energy, want_energies, want_virial = _WANT
-    n = len(row) - 1
-    bounds = balanced_chunks(row, nthreads)
     # forces and field together (forces_and_field): one buffer, both on one
     # cache line per atom j (two buffers of the scattered rows miss twice)
     both = want_b and want_f
-    bbuf = np.zeros((nthreads, n if want_b and not both else 0, 3))
-    fbuf = np.zeros((nthreads, n if want_f and not both else 0, 3))
-    pbuf = np.zeros((nthreads, n if both else 0, 6))
+    bounds, fbuf, ebuf, acc = scatter_buffers(row, nthreads, want_f and not both, want_energies)
+    bbuf = thread_buffer(nthreads, len(row) - 1, want_b and not both, 3)
+    pbuf = thread_buffer(nthreads, len(row) - 1, both, 6)
     # where the scattered forces and fields go: columns 0-2 of fb, bo.. of bb
     fb = pbuf if both else fbuf
     bb, bo = (pbuf, 3) if both else (bbuf, 0)
-    ebuf = np.zeros((nthreads, n if want_energies else 0, 1))
-    acc = np.zeros((nthreads, 7))
     need_dot = want_f or want_energy or want_energies or want_virial
     need_d = _FORMED
     for t in nb.prange(nthreads):
-        e = 0.0
-        vxx = 0.0
-        vyy = 0.0
-        vzz = 0.0
-        vyz = 0.0
-        vxz = 0.0
-        vxy = 0.0
+        e = vxx = vyy = vzz = vyz = vxz = vxy = 0.0
         for i in range(bounds[t], bounds[t + 1]):
             sx = s[i, 0]
             sy = s[i, 1]
@@ -215,13 +185,8 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
                 zi = pos[i, 2]
             else:
                 xi = yi = zi = 0.0
-            bx = 0.0
-            by = 0.0
-            bz = 0.0
-            fx = 0.0
-            fy = 0.0
-            fz = 0.0
-            ei = 0.0
+            bx = by = bz = 0.0
+            fx = fy = fz = ei = 0.0
             for k in range(row[i], row[i + 1]):
                 j = nbr[k]
                 Jk = J[k]
@@ -229,9 +194,7 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
                     bx += Jk * u[j, 0]
                     by += Jk * u[j, 1]
                     bz += Jk * u[j, 2]
-                    bb[t, j, bo] += Jk * vx
-                    bb[t, j, bo + 1] += Jk * vy
-                    bb[t, j, bo + 2] += Jk * vz
+                    add_row(bb, t, j, bo, Jk * vx, Jk * vy, Jk * vz)
                 if need_dot:
                     w = sx * s[j, 0] + sy * s[j, 1] + sz * s[j, 2] - c
                     if want_energy or want_energies:
@@ -260,9 +223,7 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
                         fx -= gx
                         fy -= gy
                         fz -= gz
-                        fb[t, j, 0] += gx
-                        fb[t, j, 1] += gy
-                        fb[t, j, 2] += gz
+                        add_row(fb, t, j, 0, gx, gy, gz)
                     if want_virial:
                         vxx -= gx * dx
                         vyy -= gy * dy
@@ -271,30 +232,19 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
                         vxz -= gx * dz
                         vxy -= gx * dy
             if want_b:
-                bb[t, i, bo] += bx
-                bb[t, i, bo + 1] += by
-                bb[t, i, bo + 2] += bz
+                add_row(bb, t, i, bo, bx, by, bz)
             if want_f:
-                fb[t, i, 0] += fx
-                fb[t, i, 1] += fy
-                fb[t, i, 2] += fz
+                add_row(fb, t, i, 0, fx, fy, fz)
             if want_energies:
                 ebuf[t, i, 0] += 0.5 * ei
             e += ei
-        acc[t, 0] = e
-        acc[t, 1] = vxx
-        acc[t, 2] = vyy
-        acc[t, 3] = vzz
-        acc[t, 4] = vyz
-        acc[t, 5] = vxz
-        acc[t, 6] = vxy
-    reduce_threads(fbuf, F)
+        store_sums(acc, t, e, vxx, vyy, vzz, vyz, vxz, vxy)
     reduce_threads(bbuf, B)
+    # F and B: from fbuf, bbuf or from pbuf, never both (the others are empty)
     for i in nb.prange(pbuf.shape[1]):
         _add_thread_sums(pbuf, i, 0, F, F)
         _add_thread_sums(pbuf, i, 3, B, B)
-    reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
-    return sum_over_threads(acc)
+    return reduce_scatter(reduce_threads, fbuf, F, ebuf, energies, acc)
 
 
 @threaded()
@@ -306,12 +256,7 @@ def virial_pass(nthreads, row, nbr, image, images, G, pos, s, c, half):
     bounds = balanced_chunks(row, nthreads)
     acc = np.zeros((nthreads, 7))
     for t in nb.prange(nthreads):
-        vxx = 0.0
-        vyy = 0.0
-        vzz = 0.0
-        vyz = 0.0
-        vxz = 0.0
-        vxy = 0.0
+        vxx = vyy = vzz = vyz = vxz = vxy = 0.0
         for i in range(bounds[t], bounds[t + 1]):
             sx = s[i, 0]
             sy = s[i, 1]
@@ -338,12 +283,7 @@ def virial_pass(nthreads, row, nbr, image, images, G, pos, s, c, half):
                     vyz += h * G[k, 1] * dz
                     vxz += h * G[k, 0] * dz
                     vxy += h * G[k, 0] * dy
-        acc[t, 1] = vxx
-        acc[t, 2] = vyy
-        acc[t, 3] = vzz
-        acc[t, 4] = vyz
-        acc[t, 5] = vxz
-        acc[t, 6] = vxy
+        store_sums(acc, t, 0.0, vxx, vyy, vzz, vyz, vxz, vxy)
     return sum_over_threads(acc)
 
 

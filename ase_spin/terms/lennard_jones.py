@@ -7,8 +7,8 @@ import numpy as np
 
 from .._jit import threads
 from .._jit.cloning import kernel_twin
-from .._jit.reductions import (balanced_chunks, reduce_threads, reduce_threads_serial,
-                               sum_over_threads)
+from .._jit.reductions import (add_row, reduce_scatter, reduce_threads, reduce_threads_serial,
+                               scatter_buffers, store_sums, sub_row)
 from .._jit.threads import threaded
 from ..neighbors import separation
 from ..validate import length
@@ -214,27 +214,14 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
     """
     if _WANT is not None:  # a twin for one request: the flags are constants
         want_forces, want_energy, want_energies, want_virial = _WANT
-    n = len(row) - 1
-    bounds = balanced_chunks(row, nthreads)
-    fbuf = np.zeros((nthreads, n if want_forces else 0, 3))
-    ebuf = np.zeros((nthreads, n if want_energies else 0, 1))
-    acc = np.zeros((nthreads, 7))
+    bounds, fbuf, ebuf, acc = scatter_buffers(row, nthreads, want_forces, want_energies)
     # one species (the common case): no gather of the neighbour's type
     single = table.shape[0] == 1
     for c in nb.prange(nthreads):
-        e = 0.0
-        vxx = 0.0
-        vyy = 0.0
-        vzz = 0.0
-        vyz = 0.0
-        vxz = 0.0
-        vxy = 0.0
+        e = vxx = vyy = vzz = vyz = vxz = vxy = 0.0
         for i in range(bounds[c], bounds[c + 1]):
             ti = types[i]
-            fx = 0.0
-            fy = 0.0
-            fz = 0.0
-            ei = 0.0
+            fx = fy = fz = ei = 0.0
             for k in range(row[i], row[i + 1]):
                 j = nbr[k]
                 tj = 0 if single else types[j]
@@ -254,9 +241,7 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
                     fx += gx
                     fy += gy
                     fz += gz
-                    fbuf[c, j, 0] -= gx
-                    fbuf[c, j, 1] -= gy
-                    fbuf[c, j, 2] -= gz
+                    sub_row(fbuf, c, j, 0, gx, gy, gz)
                 if want_energies:
                     ebuf[c, j, 0] += 0.5 * u
                 if want_virial:
@@ -267,22 +252,12 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
                     vxz += du_r * dx * dz
                     vxy += du_r * dx * dy
             if want_forces:
-                fbuf[c, i, 0] += fx
-                fbuf[c, i, 1] += fy
-                fbuf[c, i, 2] += fz
+                add_row(fbuf, c, i, 0, fx, fy, fz)
             if want_energies:
                 ebuf[c, i, 0] += 0.5 * ei
             e += ei
-        acc[c, 0] = e
-        acc[c, 1] = vxx
-        acc[c, 2] = vyy
-        acc[c, 3] = vzz
-        acc[c, 4] = vyz
-        acc[c, 5] = vxz
-        acc[c, 6] = vxy
-    reduce_threads(fbuf, forces)
-    reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
-    return sum_over_threads(acc)
+        store_sums(acc, c, e, vxx, vyy, vzz, vyz, vxz, vxy)
+    return reduce_scatter(reduce_threads, fbuf, forces, ebuf, energies, acc)
 
 
 #: The kernel for forces alone (the integrators' steps from threads.SERIAL_BELOW

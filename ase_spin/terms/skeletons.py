@@ -10,7 +10,8 @@ import numba as nb
 import numpy as np
 
 from .._jit.cloning import compile_with
-from .._jit.reductions import balanced_chunks, reduce_threads, sum_over_threads
+from .._jit.reductions import (add_row, add_to, balanced_chunks, reduce_scatter, reduce_threads,
+                               sum_over_threads, thread_buffer)
 
 __all__ = ["linear_pair_field", "compile_site_pass", "compile_pair_pass"]
 
@@ -71,13 +72,12 @@ def _pair_pass(nthreads, row, nbr, half, s, data, B, F, energies, want_b, want_f
     with f = −∂e/∂r_j the force on j and d = r_j + S − r_i. A full list holds
     each pair twice: there row i adds only to atom i, and halves e and W.
     Returns (E, W in Voigt order xx yy zz yz xz xy)."""
-    n = len(row) - 1
     bounds = balanced_chunks(row, nthreads)
     scatter = half
-    nb_ = n if scatter else 0
-    bbuf = np.zeros((nthreads, nb_ if want_b else 0, 3))
-    fbuf = np.zeros((nthreads, nb_ if want_f else 0, 3))
-    ebuf = np.zeros((nthreads, nb_ if want_energies else 0, 1))
+    n = len(row) - 1
+    bbuf = thread_buffer(nthreads, n, scatter and want_b, 3)
+    fbuf = thread_buffer(nthreads, n, scatter and want_f, 3)
+    ebuf = thread_buffer(nthreads, n, scatter and want_energies, 1)
     acc = np.zeros((nthreads, 7))
     need_e = want_f or want_energy or want_energies or want_virial
     w = 1.0 if half else 0.5
@@ -86,13 +86,8 @@ def _pair_pass(nthreads, row, nbr, half, s, data, B, F, energies, want_b, want_f
         for i in range(bounds[t], bounds[t + 1]):
             if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
                 continue
-            bx = 0.0
-            by = 0.0
-            bz = 0.0
-            fx = 0.0
-            fy = 0.0
-            fz = 0.0
-            ei = 0.0
+            bx = by = bz = 0.0
+            fx = fy = fz = ei = 0.0
             for k in range(row[i], row[i + 1]):
                 j = nbr[k]
                 if want_b:
@@ -102,9 +97,7 @@ def _pair_pass(nthreads, row, nbr, half, s, data, B, F, energies, want_b, want_f
                     bz += cz
                     if scatter:
                         cx, cy, cz = pair_field(k, j, i, s, data, True)  # noqa: F821
-                        bbuf[t, j, 0] += cx
-                        bbuf[t, j, 1] += cy
-                        bbuf[t, j, 2] += cz
+                        add_row(bbuf, t, j, 0, cx, cy, cz)
                 if need_e:
                     e, gx, gy, gz, dx, dy, dz = pair_energy(k, i, j, s, data)  # noqa: F821
                     ei += 0.5 * e
@@ -114,9 +107,7 @@ def _pair_pass(nthreads, row, nbr, half, s, data, B, F, energies, want_b, want_f
                     fz -= gz
                     if scatter:
                         if want_f:
-                            fbuf[t, j, 0] += gx
-                            fbuf[t, j, 1] += gy
-                            fbuf[t, j, 2] += gz
+                            add_row(fbuf, t, j, 0, gx, gy, gz)
                         if want_energies:
                             ebuf[t, j, 0] += 0.5 * e
                     if want_virial:
@@ -128,32 +119,23 @@ def _pair_pass(nthreads, row, nbr, half, s, data, B, F, energies, want_b, want_f
                         v[6] -= 0.5 * w * (gx * dy + gy * dx)
             if scatter:
                 if want_b:
-                    bbuf[t, i, 0] += bx
-                    bbuf[t, i, 1] += by
-                    bbuf[t, i, 2] += bz
+                    add_row(bbuf, t, i, 0, bx, by, bz)
                 if want_f:
-                    fbuf[t, i, 0] += fx
-                    fbuf[t, i, 1] += fy
-                    fbuf[t, i, 2] += fz
+                    add_row(fbuf, t, i, 0, fx, fy, fz)
                 if want_energies:
                     ebuf[t, i, 0] += ei
             else:  # row i belongs to this thread alone
                 if want_b:
-                    B[i, 0] += bx
-                    B[i, 1] += by
-                    B[i, 2] += bz
+                    add_to(B, i, bx, by, bz)
                 if want_f:
-                    F[i, 0] += fx
-                    F[i, 1] += fy
-                    F[i, 2] += fz
+                    add_to(F, i, fx, fy, fz)
                 if want_energies:
                     energies[i] += ei
         for c in range(7):
             acc[t, c] = v[c]
     if scatter:
         reduce_threads(bbuf, B)
-        reduce_threads(fbuf, F)
-        reduce_threads(ebuf, energies.reshape((energies.shape[0], 1)))
+        return reduce_scatter(reduce_threads, fbuf, F, ebuf, energies, acc)
     return sum_over_threads(acc)
 
 

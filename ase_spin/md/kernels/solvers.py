@@ -30,6 +30,22 @@ from .midpoint import (MEMORY, NOT_CONVERGED, coloured_spins, coloured_sweep, en
 NO_FIELD = np.zeros((0, 3))
 
 
+@nb.njit(cache=True, inline="always")
+def _solver_buffers(n, memory, local):
+    """(dF, dG, fprev, gprev, gram, jacobi_rows) of a midpoint solve over n
+    spins: the Anderson history of ``memory`` sweeps (:func:`anderson_mix`)
+    and the rows the locally exact update left to the Jacobi one. (Scalars
+    in: an array passed into an inlined function with branches costs a
+    reference-count increment and decrement.)"""
+    dF = np.empty((memory, n, 3))
+    dG = np.empty((memory, n, 3))
+    fprev = np.empty((n if memory > 0 else 0, 3))
+    gprev = np.empty((n if memory > 0 else 0, 3))
+    gram = np.zeros((memory, memory))
+    jacobi_rows = np.zeros(n if local else 0, dtype=np.bool_)
+    return dF, dG, fprev, gprev, gram, jacobi_rows
+
+
 @threaded(anderson_mix=lambda: anderson_mix_serial)
 def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
                    theta0, carry, carry_out, memory=MEMORY, local=True, field=None,
@@ -93,12 +109,7 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     n = len(row) - 1
     bounds = balanced_chunks(row, nthreads)
     change = np.zeros(nthreads)
-    dF = np.empty((memory, n, 3))
-    dG = np.empty((memory, n, 3))
-    fprev = np.empty((n if memory > 0 else 0, 3))
-    gprev = np.empty((n if memory > 0 else 0, 3))
-    gram = np.zeros((memory, memory))
-    jacobi_rows = np.zeros(n if local else 0, dtype=np.bool_)
+    dF, dG, fprev, gprev, gram, jacobi_rows = _solver_buffers(n, memory, local)
     cur = W
     nxt = Wnext
     which = 1  # the buffer nxt is: 0 = W, 1 = Wnext
@@ -196,12 +207,7 @@ def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, to
         atoms[t] = (n * t) // nthreads
     buf = np.zeros((nthreads, n, 3))
     change = np.zeros(nthreads)
-    dF = np.empty((memory, n, 3))
-    dG = np.empty((memory, n, 3))
-    fprev = np.empty((n if memory > 0 else 0, 3))
-    gprev = np.empty((n if memory > 0 else 0, 3))
-    gram = np.zeros((memory, memory))
-    jacobi_rows = np.zeros(n if local else 0, dtype=np.bool_)
+    dF, dG, fprev, gprev, gram, jacobi_rows = _solver_buffers(n, memory, local)
     cur = W
     nxt = Wnext
     which = 1  # the buffer nxt is: 0 = W, 1 = Wnext
