@@ -21,12 +21,7 @@ example)::
     [output]        trajectory = "md.traj", log = "md.log", xyz = "spins.xyz",
                     interval = 10, overwrite = false
 
-Terms, couplings and integrators are looked up by name among the classes
-``ase_spin`` exports: a term added to the package (and exported) is usable
-here with no change to this file. A table with a ``type`` key anywhere inside
-a term's parameters builds that object (``coupling = {type = "BetheSlater",
-J1 = ...}``); every other key is a keyword argument, in the class's own units —
-only the integrator's ``timestep`` is given in fs here.
+How the tables become objects: :mod:`ase_spin.app.inputs`.
 """
 
 from __future__ import annotations

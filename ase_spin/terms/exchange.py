@@ -19,9 +19,9 @@ from .couplings import (FORM, FORM_OFF, FORM_PYTHON, P0, RC2, BetheSlater, Coupl
 from .exchange_fused import (exchange_add_kept, exchange_couplings, exchange_forces,
                              exchange_forces_two, exchange_geometry, exchange_geometry_threaded)
 from .exchange_geometry import direct_kernel, geometry_kernel, geometry_single
-from .exchange_passes import (FORCES_ONLY, add_kept_pass, forces_two_pass, spin_pass_formed,
+from .exchange_passes import (add_kept_pass, forces_two_pass, spin_pass_formed,
                               spin_pass_half_field, spin_pass_half_formed,
-                              spin_pass_half_forces, spin_pass_half_forces_field,
+                              spin_pass_half_forces_field,
                               spin_pass_half_kernel, spin_pass_kernel, virial_pass)
 from .lammps_form import LammpsPair, number_text
 from .parameters import is_pair_mapping, pair_values, resolve_pairs
@@ -133,9 +133,6 @@ class ExchangeOperator(SpinOperator):
         in_pass = want.virial and not self.stored
         if self.stored:
             kernel = spin_pass_half_kernel if pairs.half else spin_pass_kernel
-            if pairs.half and (want.magnetic_forces, want.forces, want.energy, want.energies,
-                               in_pass) == FORCES_ONLY:
-                kernel = spin_pass_half_forces
         else:
             kernel = spin_pass_half_formed if pairs.half else spin_pass_formed
         out = kernel(threads.count(), pairs.row, pairs.j, pairs.image, pairs.images, self.J,

@@ -12,14 +12,14 @@ import numba as nb
 import numpy as np
 
 from .exchange_geometry import geometry_single
-from .exchange_passes import add_kept_pass, forces_two_pass, spin_pass_half_forces
+from .exchange_passes import add_kept_pass, forces_two_pass, spin_pass_half_kernel
 
 __all__ = ["exchange_forces", "exchange_forces_two", "exchange_add_kept", "exchange_geometry",
            "exchange_geometry_threaded", "exchange_couplings"]
 
 
 _geometry_single_serial = geometry_single.serial
-_forces_pass_serial = spin_pass_half_forces.serial
+_forces_pass_serial = spin_pass_half_kernel.serial
 
 
 @nb.njit(cache=True)

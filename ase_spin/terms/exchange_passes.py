@@ -15,9 +15,9 @@ from .._jit.reductions import (add_row, add_to, balanced_chunks, reduce_scatter,
 from .._jit.threads import threaded
 from ..neighbors import separation
 
-__all__ = ["FORCES_ONLY", "FIELD_ONLY", "FORCES_AND_FIELD", "spin_pass_kernel",
+__all__ = ["FIELD_ONLY", "FORCES_AND_FIELD", "spin_pass_kernel",
            "spin_pass_formed", "spin_pass_half_kernel", "spin_pass_half_formed",
-           "spin_pass_half_forces", "spin_pass_half_field", "spin_pass_half_forces_field",
+           "spin_pass_half_field", "spin_pass_half_forces_field",
            "virial_pass", "forces_two_pass", "add_kept_pass"]
 
 
@@ -42,7 +42,6 @@ def _formed_twin(fn):
 
 
 #: The requests with twins of their own (see _WANT).
-FORCES_ONLY = (False, True, False, False, False)
 FIELD_ONLY = (True, False, False, False, False)
 FORCES_AND_FIELD = (True, True, False, False, False)
 
@@ -379,8 +378,6 @@ spin_pass_formed = threaded()(_formed_twin(_spin_pass))
 spin_pass_half_kernel = threaded(reduce_threads=lambda: reduce_threads_serial)(_spin_pass_half)
 spin_pass_half_formed = threaded(reduce_threads=lambda: reduce_threads_serial)(
     _formed_twin(_spin_pass_half))
-spin_pass_half_forces = threaded(reduce_threads=lambda: reduce_threads_serial)(
-    kernel_twin(_spin_pass_half, "_forces", _WANT=FORCES_ONLY))
 spin_pass_half_field = threaded(reduce_threads=lambda: reduce_threads_serial)(
     kernel_twin(_spin_pass_half, "_field", _WANT=FIELD_ONLY))
 spin_pass_half_forces_field = threaded(reduce_threads=lambda: reduce_threads_serial)(

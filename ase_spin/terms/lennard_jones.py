@@ -6,7 +6,6 @@ import numba as nb
 import numpy as np
 
 from .._jit import threads
-from .._jit.cloning import kernel_twin
 from .._jit.reductions import (add_row, reduce_scatter, reduce_threads, reduce_threads_serial,
                                scatter_buffers, store_sums, sub_row)
 from .._jit.threads import threaded
@@ -153,13 +152,7 @@ class LennardJones(Term):
         ``want`` is a :class:`~ase_spin.hamiltonian.Want`. Returns (energy, virial
         in Voigt order xx yy zz yz xz xy, eV).
         """
-        # the forces-only twin only where it repays its compilation (once per
-        # install): systems whose steps take the general path; below, the fused
-        # step and the general kernel (docs/benchmarks.md, first use)
-        forces_only = (want.forces and not (want.energy or want.energies or want.virial)
-                       and len(positions) >= threads.SERIAL_BELOW)
-        kernel = _lj_forces_kernel if forces_only else _lj_kernel
-        out = kernel(threads.all_threads(), positions, pairs.row, pairs.j, pairs.image,
+        out = _lj_kernel(threads.all_threads(), positions, pairs.row, pairs.j, pairs.image,
                      pairs.images, types, table, forces, energies, want.forces,
                      want.energy, want.energies, want.virial)
         return out[0], out[1:]
@@ -196,11 +189,6 @@ def _lj_pair(r2, sig2, eps4, mode, e0, rc2, ro2):
     return u, du_r
 
 
-#: The request flags (forces, energy, energies, virial) of a twin compiled for
-#: one request (``_lj_forces_kernel``: forces alone), None in the general kernel.
-_WANT = None
-
-
 @threaded(always=True, reduce_threads=lambda: reduce_threads_serial)
 def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, energies,
                want_forces, want_energy, want_energies, want_virial):
@@ -212,8 +200,6 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
     Threads take runs of rows of equal pair count and scatter into their own
     buffers, summed at the end: half the pair work of a full list, no races.
     """
-    if _WANT is not None:  # a twin for one request: the flags are constants
-        want_forces, want_energy, want_energies, want_virial = _WANT
     bounds, fbuf, ebuf, acc = scatter_buffers(row, nthreads, want_forces, want_energies)
     # one species (the common case): no gather of the neighbour's type
     single = table.shape[0] == 1
@@ -260,10 +246,6 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
     return reduce_scatter(reduce_threads, fbuf, forces, ebuf, energies, acc)
 
 
-#: The kernel for forces alone (the integrators' steps from threads.SERIAL_BELOW
-#: atoms on, see LennardJones.compute): no energy summed, no branch on the flags.
-_lj_forces_kernel = threaded(always=True, reduce_threads=lambda: reduce_threads_serial)(
-    kernel_twin(_lj_kernel.__wrapped__, "_forces", _WANT=(True, False, False, False)))
 _lj_serial = _lj_kernel.serial
 
 
