@@ -9,13 +9,7 @@ import golden
 RECORD = golden.load()
 
 
-#: Scenes in the long checks only (-m slow): the fused step's bits are the
-#: general path's (tests/test_small_systems.py), whose bits the default run checks
-SLOW = {"fcc_co_108_fused", "paper_chain_fused", "fcc_co_2048_frozen_order4"}
-
-
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW else n
-                                  for n in golden.SCENES])
+@pytest.mark.parametrize("name", list(golden.SCENES))
 def test_scene_ends_on_the_recorded_bits(name, monkeypatch):
     if name.endswith("_fused"):
         golden.fused_now(monkeypatch.setattr)
