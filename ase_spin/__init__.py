@@ -4,7 +4,8 @@ from ._jit import cache as _compilation  # noqa: F401 - announces first-use comp
 from .calculator import SpinLatticeCalculator
 from .constants import HBAR_LAMMPS, MU_B, MU_B_LAMMPS
 from .hamiltonian import AtomsTooCloseError, Evaluator, Hamiltonian
-from .interop.lammps import read_lammps_spin_dump, write_lammps
+from .interop.lammps import write_lammps
+from .interop.lammps_dump import read_lammps_spin_dump
 from .interop.symmetry import magnetic_symmetry, neighbor_shells
 from .interop.tb2j import read_tb2j
 from .io.trajectories import complete_frames, recover_trajectory

@@ -15,7 +15,8 @@ from ase import units
 from ase.build import bulk
 
 import ase_spin
-from ase_spin.interop.lammps import LammpsIntegratorWarning, read_lammps_spin_dump, write_lammps
+from ase_spin.interop.lammps import LammpsIntegratorWarning, write_lammps
+from ase_spin.interop.lammps_dump import read_lammps_spin_dump
 from lammps_peer import LAMMPS_HBAR, lammps_available, load_lammps
 from ase_spin.scenes import cone
 

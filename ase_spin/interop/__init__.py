@@ -1,7 +1,8 @@
 """Other programs' formats: LAMMPS SPIN decks and dumps, TB2J exchange
 parameters, magnetic symmetry and neighbour shells from spglib."""
 
-from .lammps import read_lammps_spin_dump, write_lammps
+from .lammps import write_lammps
+from .lammps_dump import read_lammps_spin_dump
 from .symmetry import magnetic_symmetry, neighbor_shells
 from .tb2j import read_tb2j
 
