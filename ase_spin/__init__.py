@@ -2,7 +2,7 @@
 
 from ._jit import cache as _compilation  # noqa: F401 - announces first-use compilation
 from .calculator import SpinLatticeCalculator
-from .constants import HBAR_LAMMPS, MU_B, MU_B_LAMMPS
+from .constants import G_ELECTRON, HBAR_LAMMPS, MU_B, MU_B_LAMMPS
 from .hamiltonian import AtomsTooCloseError, Evaluator, Hamiltonian
 from .interop.lammps import write_lammps
 from .interop.lammps_dump import read_lammps_spin_dump
@@ -24,7 +24,7 @@ __all__ = [
     "SpinLatticeCalculator", "Hamiltonian", "Evaluator", "Want", "AtomsTooCloseError",
     "set_spins", "get_spins", "get_moments",
     "CollectivePRK", "SuzukiTrotter", "SpinLatticeDynamics", "IntegrationError",
-    "SpinConvergenceError", "UnstableStepError", "Langevin", "relax_spins", "SpinMDLogger", "HBAR", "HBAR_LAMMPS", "MU_B", "MU_B_LAMMPS",
+    "SpinConvergenceError", "UnstableStepError", "Langevin", "relax_spins", "SpinMDLogger", "HBAR", "HBAR_LAMMPS", "MU_B", "MU_B_LAMMPS", "G_ELECTRON",
     "recover_trajectory", "complete_frames", "write_lammps", "read_lammps_spin_dump",
     "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic", "Zeeman",
     "UniaxialAnisotropy", "CubicAnisotropy", "DMI", "BiquadraticExchange", "CalculatorTerm", "EAM",

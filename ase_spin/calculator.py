@@ -7,6 +7,7 @@ import warnings
 import numpy as np
 from ase.calculators.calculator import Calculator, PropertyNotImplementedError, all_changes, equal
 
+from .conventions import conventions as as_conventions
 from .hamiltonian import AtomsTooCloseError, Hamiltonian
 from .serialize import decode_term, encode_term
 from .spins import get_moments, split_moments
@@ -73,6 +74,10 @@ class SpinLatticeCalculator(Calculator):
         Exchange(BetheSlater(0.0446928, 0.003496, 1.4885), rc=4.0)]``.
     skin : float
         Verlet skin (Å) of the neighbour list kept between calls.
+    conventions : "physical" (default), "lammps" or "paper"
+        The Zeeman energy and the integrators' default precession and ħ
+        (:mod:`ase_spin.conventions`): physical by default (−μ_i μB s·H, Larmor
+        precession, CODATA); "lammps" follows LAMMPS SPIN step for step.
 
     Spins are read from ``atoms`` (``initial_magmoms``, (N, 3), see
     :func:`ase_spin.set_spins`). Properties:
@@ -98,9 +103,16 @@ class SpinLatticeCalculator(Calculator):
                               "magmoms", "magmom", "magnetic_forces"]
     nolabel = True
 
-    def __init__(self, terms, skin=0.3, *, label=None, atoms=None, directory="."):
+    def __init__(self, terms, skin=0.3, *, conventions=None, label=None, atoms=None,
+                 directory="."):
         # no **kwargs: ASE's Calculator would store a misspelt keyword and ignore it
-        self.hamiltonian = terms if isinstance(terms, Hamiltonian) else Hamiltonian(terms, skin)
+        if isinstance(terms, Hamiltonian):
+            if conventions is not None and as_conventions(conventions) != terms.conventions:
+                raise ValueError(f"conventions={conventions!r} differ from the given "
+                                 f"Hamiltonian's ({terms.conventions.name!r})")
+            self.hamiltonian = terms
+        else:
+            self.hamiltonian = Hamiltonian(terms, skin, conventions=conventions or "physical")
         super().__init__(label=label, atoms=atoms, directory=directory)
         self.evaluator = None
         self._numbers = None
@@ -123,7 +135,8 @@ class SpinLatticeCalculator(Calculator):
         """The Hamiltonian as JSON-ready data (what a trajectory keeps as this
         calculator's parameters): :meth:`from_dict` rebuilds it."""
         return {"terms": [encode_term(t) for t in self.hamiltonian.terms],
-                "skin": self.hamiltonian.skin}
+                "skin": self.hamiltonian.skin,
+                "conventions": self.hamiltonian.conventions.name}
 
     @classmethod
     def from_dict(cls, data):
@@ -132,7 +145,8 @@ class SpinLatticeCalculator(Calculator):
         if not isinstance(data, dict) or "terms" not in data:
             raise ValueError("from_dict needs the dict of SpinLatticeCalculator.todict() "
                              f"(with 'terms'), got {data!r:.80}")
-        return cls([decode_term(t) for t in data["terms"]], skin=data.get("skin", 0.3))
+        return cls([decode_term(t) for t in data["terms"]], skin=data.get("skin", 0.3),
+                   conventions=data.get("conventions", "physical"))
 
     def get_magnetic_moment_vector(self, atoms=None):
         """The total moment Σ_i μ_i s_i (μB), shape (3,); ``get_magnetic_moment``

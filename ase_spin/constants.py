@@ -1,7 +1,8 @@
-"""Physical constants in the units this package uses (ASE's: eV, Å, ASE time).
+"""Physical constants in the units this package uses (ASE's: eV, Å, ASE time, tesla).
 
-ħ appears in the spin equation of motion, ds/dt = (σ/ħ) s × B; LAMMPS metal
-units carry their own rounded value, which a side-by-side comparison must use.
+One name for each constant, each in these units. ħ appears in the spin
+equation of motion; LAMMPS metal units carry their own rounded ħ and μB, which
+a side-by-side comparison must use (see :mod:`ase_spin.conventions`).
 """
 
 from __future__ import annotations
@@ -10,20 +11,21 @@ import math
 
 from ase import units
 
-__all__ = ["HBAR", "HBAR_LAMMPS", "LAMMPS_HBAR_EV_PS", "MU_B", "MU_B_LAMMPS"]
+__all__ = ["HBAR", "HBAR_LAMMPS", "MU_B", "MU_B_LAMMPS", "G_ELECTRON"]
 
-#: ħ in eV·(ASE time unit), from CODATA via ase.units.
+#: ħ in eV·(ASE time unit), CODATA (the set ase.units uses).
 HBAR = units._hbar / units._e * units.s
 
-#: ħ of LAMMPS metal units (``force->hplanck / 2π``) in eV·ps.
-LAMMPS_HBAR_EV_PS = 4.135667403e-3 / (2.0 * math.pi)
+#: LAMMPS's ħ in eV·(ASE time unit): metal units' ``force->hplanck / 2π``
+#: = 4.135667403e-3/2π eV·ps, 6.3e-8 relative below CODATA.
+HBAR_LAMMPS = 4.135667403e-3 / (2.0 * math.pi) * 1000.0 * units.fs
 
-#: LAMMPS's ħ in eV·(ASE time unit): pass ``hbar=HBAR_LAMMPS`` to follow LAMMPS
-#: step for step.
-HBAR_LAMMPS = LAMMPS_HBAR_EV_PS * 1000.0 * units.fs
-
-#: The Bohr magneton in eV/T (CODATA via ase.units): eħ/2mₑ.
+#: The Bohr magneton eħ/2mₑ in eV/T, CODATA (the set ase.units uses).
 MU_B = units._hbar / (2.0 * units._me)
 
 #: The Bohr magneton LAMMPS SPIN uses (``fix precession/spin``), eV/T.
 MU_B_LAMMPS = 5.78901e-5
+
+#: The magnitude of the electron's g-factor, CODATA 2014 (the set ase.units
+#: uses): the Larmor frequency of a moment is G_ELECTRON·MU_B·H/HBAR.
+G_ELECTRON = 2.00231930436182

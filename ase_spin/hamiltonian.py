@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ._jit.threads import threads_for
+from .conventions import conventions as as_conventions
 from .neighbors import NeighborCache, all_finite
 from .terms.ase_calculator import CalculatorTerm, is_ase_calculator
 from .terms.base import Species, System, Term, Want
@@ -52,9 +53,11 @@ class Hamiltonian:
     as :class:`~ase_spin.terms.ase_calculator.CalculatorTerm`, the lattice part.
 
     ``skin`` (Å) is the Verlet skin of the neighbour lists its evaluators keep.
+    ``conventions``: "physical" (default) or "lammps", the Zeeman energy and
+    the integrators' precession and ħ (:mod:`ase_spin.conventions`).
     """
 
-    def __init__(self, terms, skin=0.3):
+    def __init__(self, terms, skin=0.3, *, conventions="physical"):
         if isinstance(terms, Term) or is_ase_calculator(terms):
             terms = [terms]
         # an ASE calculator (EMT(), ...) is the lattice term CalculatorTerm(calc)
@@ -71,6 +74,7 @@ class Hamiltonian:
             raise ValueError(f"skin must be >= 0 Å, got {skin}")
         self.terms = terms
         self.skin = skin
+        self.conventions = as_conventions(conventions)
         names = [t.name for t in terms]
         self.term_names = [
             n if names.count(n) == 1 else f"{n}_{names[:k].count(n)}"
@@ -112,7 +116,8 @@ class Hamiltonian:
         return Evaluator(self, numbers, cell, pbc, moments)
 
     def __repr__(self):
-        return f"Hamiltonian({self.terms!r}, skin={self.skin})"
+        return (f"Hamiltonian({self.terms!r}, skin={self.skin}, "
+                f"conventions={self.conventions.name!r})")
 
 
 def _symbols(numbers):
@@ -213,7 +218,8 @@ class Evaluator:
         self._bind()
 
     def _bind(self):
-        self.system = System(self.species, self.moments, self.cell, self.pbc)
+        self.system = System(self.species, self.moments, self.cell, self.pbc,
+                             self.hamiltonian.conventions)
         self._tables = [t.bind(self.system) for t in self.hamiltonian.terms]
 
     def refresh(self, positions, also=None):

@@ -28,8 +28,8 @@ def paper_chain_terms():
 def paper_chain(n=30):
     """The paper's experiment: n atoms of mass 1 at x_k = k on a periodic line of
     length n, at rest, spins w_k ∝ (0.8 cos 2πk/n + 0.5 sin 4πk/n,
-    0.8 sin 2πk/n + 0.5 cos 4πk/n, 1). Integrate it with ``hbar=1,
-    precession="spin"`` (the paper's reduced units and convention)."""
+    0.8 sin 2πk/n + 0.5 cos 4πk/n, 1), under the paper's conventions (ħ = 1,
+    the spin convention: the integrators' defaults follow them)."""
     k = np.arange(1, n + 1)
     atoms = Atoms(f"H{n}", positions=np.column_stack([k, np.zeros(n), np.zeros(n)]),
                   cell=[float(n), 10.0, 10.0], pbc=[True, False, False])
@@ -38,7 +38,7 @@ def paper_chain(n=30):
                          0.8 * np.sin(2 * np.pi * k / n) + 0.5 * np.cos(4 * np.pi * k / n),
                          np.ones(n)])
     set_spins(atoms, w / np.linalg.norm(w, axis=1)[:, None])
-    atoms.calc = SpinLatticeCalculator(paper_chain_terms())
+    atoms.calc = SpinLatticeCalculator(paper_chain_terms(), conventions="paper")
     return atoms
 
 
@@ -62,18 +62,21 @@ FIELD_ANISOTROPY_LAMMPS = "zeeman 10.0 0.0 0.0 1.0 anisotropy 0.01 1.0 0.0 0.0"
 
 
 def field_anisotropy_terms():
-    """A 10 T field along z (LAMMPS's g = 2 and μB) and a uniaxial anisotropy
+    """A 10 T field along z (LAMMPS's g = 2 and μB under either conventions) and a uniaxial anisotropy
     K = 0.01 eV along x: the single-site terms added to the fcc Co scene for
     the work–precision and long-run comparisons (``fcc_cobalt(extra=...)``)."""
-    return [Zeeman(10.0, [0.0, 0.0, 1.0], mu_B=MU_B_LAMMPS),
+    return [Zeeman(10.0, [0.0, 0.0, 1.0], g=2.0, mu_B=MU_B_LAMMPS),
             UniaxialAnisotropy(0.01, [1.0, 0.0, 0.0])]
 
 
-def fcc_cobalt(n=5, temperature_K=100.0, cone_deg=30.0, seed=0, magnitude=1.72, extra=()):
+def fcc_cobalt(n=5, temperature_K=100.0, cone_deg=30.0, seed=0, magnitude=1.72, extra=(),
+               conventions="physical"):
     """The benchmark scene of peers.md: fcc Co, a = 3.54 Å, 4n³ atoms in a cubic
     periodic box, mass 58.93 amu, spins uniform in a ``cone_deg`` cone about +z,
     Maxwell–Boltzmann velocities at ``temperature_K`` (total momentum zeroed).
-    ``extra``: more terms for the Hamiltonian (e.g. :func:`field_anisotropy_terms`)."""
+    ``extra``: more terms for the Hamiltonian (e.g. :func:`field_anisotropy_terms`).
+    ``conventions``: the calculator's (``"lammps"`` where it is compared with LAMMPS
+    step for step)."""
     atoms = bulk("Co", "fcc", a=3.54, cubic=True).repeat(n)
     atoms.set_masses(np.full(len(atoms), 58.93))
     rng = np.random.default_rng(seed)
@@ -85,5 +88,5 @@ def fcc_cobalt(n=5, temperature_K=100.0, cone_deg=30.0, seed=0, magnitude=1.72, 
         p = rng.normal(size=(len(atoms), 3)) * np.sqrt(m * units.kB * temperature_K)
         p -= p.sum(axis=0) / len(atoms)
         atoms.set_momenta(p)
-    atoms.calc = SpinLatticeCalculator([*fcc_cobalt_terms(), *extra])
+    atoms.calc = SpinLatticeCalculator([*fcc_cobalt_terms(), *extra], conventions=conventions)
     return atoms

@@ -45,12 +45,12 @@ def measure(n, steps, repeats, with_lammps):
     settings = {f"{chunks()} threads": chunks(), "1 thread": 1, "auto": "auto"}
     dyns = {}
     for label, threads in settings.items():
-        atoms = fcc_cobalt(n)
+        atoms = fcc_cobalt(n, conventions="lammps")
         dyns[label] = CollectivePRK(atoms, 0.1 * units.fs, hbar=HBAR_LAMMPS, threads=threads)
         dyns[label].run(4)  # compile, and let "auto" time both choices
     lmp = None
     if with_lammps:
-        lmp = LammpsSpin(fcc_cobalt(n), (0.4, 2.2742, 4.7, True),
+        lmp = LammpsSpin(fcc_cobalt(n, conventions="lammps"), (0.4, 2.2742, 4.7, True),
                          (0.0446928, 0.003496, 1.4885, 4.0, False), timestep_fs=0.1)
         lmp.run(0)
     natoms = 4 * n**3

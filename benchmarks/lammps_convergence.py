@@ -40,14 +40,14 @@ def rms(a, b):
 
 
 def ours(n, t_fs, dt_fs, order=2):
-    atoms = fcc_cobalt(n)
+    atoms = fcc_cobalt(n, conventions="lammps")
     dyn = CollectivePRK(atoms, dt_fs * units.fs, hbar=HBAR_LAMMPS_ASE, order=order)
     dyn.run(int(round(t_fs / dt_fs)))
     return atoms.positions.copy(), ase_spin.get_spins(atoms), dyn.mean_iterations
 
 
 def lammps(n, t_fs, dt_fs):
-    atoms = fcc_cobalt(n)
+    atoms = fcc_cobalt(n, conventions="lammps")
     lmp = LammpsSpin(atoms, LJ, EXCHANGE, timestep_fs=dt_fs)
     lmp.run(int(round(t_fs / dt_fs)))
     x, _, s = lmp.state()
@@ -67,7 +67,7 @@ def main(argv=None):
 
     print(describe())
     t0 = time.perf_counter()
-    xr, _, sr = reference_solution(fcc_cobalt(args.n), args.fs * units.fs, hbar=HBAR_LAMMPS_ASE,
+    xr, _, sr = reference_solution(fcc_cobalt(args.n, conventions="lammps"), args.fs * units.fs, hbar=HBAR_LAMMPS_ASE,
                                    precession="moment")
     print(f"fcc Co, {4 * args.n**3} atoms, T = {args.fs} fs, moment convention, ħ = LAMMPS's; "
           f"DOP853 reference in {time.perf_counter() - t0:.1f} s")

@@ -55,7 +55,7 @@ def main(argv=None):
         label = f"paper chain, h = {dt:g}"
     else:
         field = args.scene == "fcc-field"
-        atoms = fcc_cobalt(args.n, extra=field_anisotropy_terms() if field else ())
+        atoms = fcc_cobalt(args.n, extra=field_anisotropy_terms() if field else (), conventions="lammps")
         dt = args.dt or 0.1
         dyn = integrator(atoms, dt * units.fs, order=args.order, hbar=HBAR_LAMMPS)
         label = (f"{args.scene} Co N = {len(atoms)}, dt = {dt:g} fs, "
@@ -99,7 +99,7 @@ def lammps_run(args):
     dt = args.dt or 0.1
     fixes = ((f"fix 2 all precession/spin {FIELD_ANISOTROPY_LAMMPS}", "fix_modify 2 energy yes")
              if field else ())
-    lmp = LammpsSpin(fcc_cobalt(args.n), (0.4, 2.2742, 4.7, True),
+    lmp = LammpsSpin(fcc_cobalt(args.n, conventions="lammps"), (0.4, 2.2742, 4.7, True),
                      (0.0446928, 0.003496, 1.4885, 4.0, False), timestep_fs=dt, fixes=fixes)
     lmp.run(0)
     e0 = lmp.lmp.get_thermo("etotal")

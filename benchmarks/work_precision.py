@@ -65,7 +65,7 @@ CHAIN_METHODS = [
 
 
 def fcc_scene(n, field=False):
-    atoms = fcc_cobalt(n, extra=field_anisotropy_terms() if field else ())
+    atoms = fcc_cobalt(n, extra=field_anisotropy_terms() if field else (), conventions="lammps")
     velocities = atoms.get_velocities()
     atoms.set_masses(atoms.get_masses() * MASS_RATIO)
     atoms.set_velocities(velocities)
@@ -109,7 +109,7 @@ def lammps_fixes(field):
 
 
 def run_lammps(n, dt_fs, t_fs, field=False):
-    lmp = LammpsSpin(fcc_cobalt(n), LJ, EXCHANGE, timestep_fs=dt_fs, fixes=lammps_fixes(field))
+    lmp = LammpsSpin(fcc_cobalt(n, conventions="lammps"), LJ, EXCHANGE, timestep_fs=dt_fs, fixes=lammps_fixes(field))
     lmp.run(0)
     t0 = time.perf_counter()
     lmp.run(int(round(t_fs / dt_fs)))

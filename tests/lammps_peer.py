@@ -22,13 +22,15 @@ import tempfile
 
 import numpy as np
 
-from ase_spin.constants import LAMMPS_HBAR_EV_PS
+from ase import units
 
-__all__ = ["lammps_available", "load_lammps", "LammpsSpin", "LammpsLattice", "LAMMPS_HBAR",
-           "LAMMPS_NKTV2P"]
+from ase_spin.constants import HBAR_LAMMPS
 
-#: ħ of LAMMPS metal units, eV·ps (hplanck / 2π).
-LAMMPS_HBAR = LAMMPS_HBAR_EV_PS  # eV·ps
+__all__ = ["lammps_available", "load_lammps", "LammpsSpin", "LammpsLattice", "EV_PER_FM",
+           "LAMMPS_NKTV2P", "lammps_calculator"]
+
+#: LAMMPS's ħ in eV·ps: its ``fm`` (rad/ps) times this is B = −∂E/∂s in eV.
+EV_PER_FM = HBAR_LAMMPS / (1000.0 * units.fs)
 #: LAMMPS metal units: pressure (bar) per eV/Å³.
 LAMMPS_NKTV2P = 1.6021765e6
 
@@ -156,7 +158,7 @@ class LammpsSpin:
         (fm·ħ, eV) and ASE-convention stress (eV/Å³) at the current state."""
         lmp, n = self.lmp, self.natoms
         lmp.command("run 0")
-        fm = np.array(lmp.numpy.extract_compute("fm", 1, 2)[:n]) * LAMMPS_HBAR
+        fm = np.array(lmp.numpy.extract_compute("fm", 1, 2)[:n]) * EV_PER_FM
         p = np.array(lmp.numpy.extract_compute("pv", 0, 1))  # xx yy zz xy xz yz, bar
         return {
             "energy": lmp.get_thermo("pe"),
@@ -248,3 +250,11 @@ class LammpsLattice:
 
     def close(self):
         self.lmp.close()
+
+
+def lammps_calculator(terms, **kwargs):
+    """A SpinLatticeCalculator under LAMMPS's conventions (its Zeeman energy, ħ
+    and rate-1 precession): the scenes compared with LAMMPS step for step."""
+    from ase_spin import SpinLatticeCalculator
+
+    return SpinLatticeCalculator(terms, conventions="lammps", **kwargs)

@@ -172,13 +172,13 @@ def test_one_calculation_per_step(integrator, tmp_path):
     assert emt.calls - before == 10
 
 
-@pytest.mark.filterwarnings("ignore::ase_spin.md.errors.TimestepWarning")  # 2 fs: on purpose
+@pytest.mark.filterwarnings("ignore::ase_spin.md.errors.TimestepWarning")  # 1 fs: on purpose
 def test_collective_prk_with_emt_conserves_energy_at_second_order():
-    """Energy error of CollectivePRK with EMT + exchange over 40 fs at h and
-    h/2: small, and shrinking as h² (ratio 4.0 measured; 3–5 allows for the
-    error's oscillation)."""
+    """Energy error of CollectivePRK with EMT + exchange over 20 fs at h and
+    h/2 (moments of 0.6 μB precess fast: rate g_e/μ): small, and shrinking as
+    h² (3–5 allows for the error's oscillation)."""
     errors = []
-    for h, n in ((2.0, 20), (1.0, 40)):
+    for h, n in ((1.0, 20), (0.5, 40)):
         atoms = _nickel()
         atoms.calc = SpinLatticeCalculator([EMT(), _exchange()])
         dyn = CollectivePRK(atoms, h * units.fs)

@@ -12,7 +12,7 @@ from ase.build import bulk
 import ase_spin
 from ase_spin import EAM, BetheSlater, CollectivePRK, Exchange, LennardJones
 from ase_spin.terms.eam_files import EAMFileError, lammps_potential_path
-from lammps_peer import lammps_available
+from lammps_peer import lammps_available, lammps_calculator
 from ase_spin.scenes import cone
 
 from conftest import CO_LJ
@@ -97,7 +97,7 @@ def test_agrees_with_lammps_at_round_off(case):
     paths = [potential(n) for n in names]
     term = EAM(paths if isinstance(args[0], list) else paths[0])
     a = with_spins(atoms)
-    a.calc = ase_spin.SpinLatticeCalculator([term])
+    a.calc = lammps_calculator([term])
     E = a.get_potential_energy()
     e = a.get_potential_energies()
     F, S = a.get_forces(), a.get_stress()
@@ -164,7 +164,7 @@ def test_synthetic_setfl_reads_and_evaluates(tmp_path):
     assert term.cutoff == 5.7
     assert term.masses == {"Fe": 55.845, "Co": 55.845}
     atoms = with_spins(alloy(fe((2, 2, 2)), "Co", 2, 1))
-    atoms.calc = ase_spin.SpinLatticeCalculator([term])
+    atoms.calc = lammps_calculator([term])
     assert np.isfinite(atoms.get_potential_energy())
     assert atoms.get_potential_energies().sum() == pytest.approx(atoms.get_potential_energy(),
                                                                  rel=1e-12)
@@ -215,11 +215,11 @@ def test_missing_species_is_a_named_error_and_atoms_are_unchanged(tmp_path):
     path = _write_setfl(tmp_path / "FeCo.eam.alloy")
     atoms = with_spins(alloy(fe((2, 2, 2)), "Ni", 3, 2))
     before = atoms.copy()
-    atoms.calc = ase_spin.SpinLatticeCalculator([EAM(path)])
+    atoms.calc = lammps_calculator([EAM(path)])
     with pytest.raises(ValueError, match=r"no element Ni: it has Fe, Co; map it"):
         atoms.get_potential_energy()
     assert atoms == before
-    atoms.calc = ase_spin.SpinLatticeCalculator([EAM(path, elements={"Ni": "Mn"})])
+    atoms.calc = lammps_calculator([EAM(path, elements={"Ni": "Mn"})])
     with pytest.raises(ValueError, match=r"no element Mn \(for the atoms' Ni\)"):
         atoms.get_forces()
     assert atoms == before
@@ -232,16 +232,16 @@ def test_element_mapping_and_left_out_species(tmp_path):
     atoms = with_spins(alloy(fe((2, 2, 2)), "Ni", 3, 2))
     renamed = atoms.copy()
     renamed.symbols[renamed.symbols == "Ni"] = "Co"
-    atoms.calc = ase_spin.SpinLatticeCalculator([EAM(path, elements={"Ni": "Co"})])
-    renamed.calc = ase_spin.SpinLatticeCalculator([EAM(path)])
+    atoms.calc = lammps_calculator([EAM(path, elements={"Ni": "Co"})])
+    renamed.calc = lammps_calculator([EAM(path)])
     assert atoms.get_potential_energy() == pytest.approx(renamed.get_potential_energy(),
                                                          rel=1e-14)
     np.testing.assert_allclose(atoms.get_forces(), renamed.get_forces(), atol=1e-13)
 
-    atoms.calc = ase_spin.SpinLatticeCalculator([EAM(path, elements={"Ni": None})])
+    atoms.calc = lammps_calculator([EAM(path, elements={"Ni": None})])
     ni = np.array(atoms.get_chemical_symbols()) == "Ni"
     without = atoms[~ni]
-    without.calc = ase_spin.SpinLatticeCalculator([EAM(path)])
+    without.calc = lammps_calculator([EAM(path)])
     assert atoms.get_potential_energy() == pytest.approx(without.get_potential_energy(),
                                                          rel=1e-13)
     f = atoms.get_forces()
@@ -254,7 +254,7 @@ def test_reassigning_the_potential_rereads_it(tmp_path):
     b = _write_setfl(tmp_path / "b.eam.alloy", elements=("Co", "Fe"))
     term = EAM(a)
     atoms = with_spins(fe((2, 2, 2)))
-    atoms.calc = ase_spin.SpinLatticeCalculator([term])
+    atoms.calc = lammps_calculator([term])
     e_a = atoms.get_potential_energy()
     term.potential = b  # Fe is now the file's second element: other functions
     assert term.file_elements == ("Co", "Fe")
@@ -272,7 +272,7 @@ def test_eam_plus_lennard_jones_sum(tmp_path):
 
     def results(terms):
         a = atoms.copy()
-        a.calc = ase_spin.SpinLatticeCalculator(terms)
+        a.calc = lammps_calculator(terms)
         return (a.get_potential_energy(), a.get_potential_energies(), a.get_forces(),
                 a.get_stress(), a.calc.results["energy_terms"])
 
@@ -295,7 +295,7 @@ def iron_scene(repeat=2, temperature_K=300.0, seed=0):
     m = atoms.get_masses()[:, None]
     p = rng.normal(size=(len(atoms), 3)) * np.sqrt(m * units.kB * temperature_K)
     atoms.set_momenta(p - p.mean(axis=0))
-    atoms.calc = ase_spin.SpinLatticeCalculator([
+    atoms.calc = lammps_calculator([
         EAM(potential("Fe_mm.eam.fs")),
         Exchange(BetheSlater(J1=0.02726, J2=0.2171, J3=1.841), rc=3.4)])
     return atoms
@@ -352,9 +352,9 @@ def test_suzuki_trotter_with_eam_follows_lammps_step_for_step():
     ratio = (1000.0 * units.fs) ** 2 * 1.0364269e-4
     for lattice in ("moving", "frozen"):
         atoms = scene()
-        atoms.calc = ase_spin.SpinLatticeCalculator([
+        atoms.calc = lammps_calculator([
             EAM(path), Exchange(BetheSlater(*bs), rc=3.4),
-            Zeeman(5.0, [0, 0, 1], mu_B=ase_spin.MU_B_LAMMPS),
+            Zeeman(5.0, [0, 0, 1]),
             UniaxialAnisotropy(1e-3, [0, 1, 1])])
         velocities = atoms.get_velocities()
         atoms.set_masses(atoms.get_masses() * ratio)
@@ -405,7 +405,7 @@ def _iron_spin_terms(path):
     from ase_spin import UniaxialAnisotropy, Zeeman
 
     return [EAM(path), Exchange(BetheSlater(*_IRON_BS), rc=3.4),
-            Zeeman(5.0, [0, 0, 1], mu_B=ase_spin.MU_B_LAMMPS),
+            Zeeman(5.0, [0, 0, 1]),
             UniaxialAnisotropy(1e-3, [0, 1, 1])]
 
 
@@ -427,7 +427,7 @@ def test_collective_prk_with_eam_converges_to_the_ode_solution_and_to_lammps():
     hbar = ase_spin.HBAR_LAMMPS
     t_fs = 10.0
     ref_atoms = _iron_spin_scene()
-    ref_atoms.calc = ase_spin.SpinLatticeCalculator(_iron_spin_terms(path))
+    ref_atoms.calc = lammps_calculator(_iron_spin_terms(path))
     # rtol 1e-11: 2 000 evaluations instead of 17 000 at 1e-13, and 1e-11 from
     # that solution, far below the integrators' errors (> 1e-6 at the finest step)
     xr, _, sr = reference_solution(ref_atoms, t_fs * units.fs, hbar=hbar, rtol=1e-11,
@@ -438,7 +438,7 @@ def test_collective_prk_with_eam_converges_to_the_ode_solution_and_to_lammps():
     for dt in (0.2, 0.1, 0.05):
         steps = int(round(t_fs / dt))
         atoms = _iron_spin_scene()
-        atoms.calc = ase_spin.SpinLatticeCalculator(_iron_spin_terms(path))
+        atoms.calc = lammps_calculator(_iron_spin_terms(path))
         CollectivePRK(atoms, dt * units.fs, hbar=hbar).run(steps)
         so = ase_spin.get_spins(atoms)
         row = [max(np.abs(so - sr).max(), np.abs(atoms.positions - xr).max())]

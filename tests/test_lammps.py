@@ -9,7 +9,7 @@ import pytest
 from ase.build import bulk
 
 import ase_spin
-from lammps_peer import LammpsSpin, lammps_available
+from lammps_peer import LammpsSpin, lammps_available, lammps_calculator
 
 from conftest import CO_BS, CO_LJ, cone_spins
 
@@ -22,7 +22,7 @@ def test_energy_forces_magnetic_forces_stress_agree_with_lammps(offset):
     atoms = bulk("Co", "fcc", a=3.54, cubic=True).repeat(4)
     atoms.rattle(0.06, seed=9)
     ase_spin.set_spins(atoms, cone_spins(len(atoms), rng), 1.72)
-    atoms.calc = ase_spin.SpinLatticeCalculator([
+    atoms.calc = lammps_calculator([
         ase_spin.LennardJones(**CO_LJ, cutoff="shift"),
         ase_spin.Exchange(ase_spin.BetheSlater(*CO_BS), rc=4.0, offset=offset)])
     E = atoms.get_potential_energy()
@@ -50,12 +50,12 @@ def test_trajectory_converges_to_the_same_limit_as_lammps():
 
     hbar = ase_spin.HBAR_LAMMPS
     t_fs = 10.0
-    xr, _, sr = reference_solution(fcc_cobalt(2), t_fs * units.fs, hbar=hbar)
+    xr, _, sr = reference_solution(fcc_cobalt(2, conventions="lammps"), t_fs * units.fs, hbar=hbar)
     rows = []
     for dt in (0.2, 0.1, 0.05):
-        atoms = fcc_cobalt(2)
+        atoms = fcc_cobalt(2, conventions="lammps")
         ase_spin.CollectivePRK(atoms, dt * units.fs, hbar=hbar).run(int(round(t_fs / dt)))
-        lmp = LammpsSpin(fcc_cobalt(2), (CO_LJ["epsilon"], CO_LJ["sigma"], CO_LJ["rc"], True),
+        lmp = LammpsSpin(fcc_cobalt(2, conventions="lammps"), (CO_LJ["epsilon"], CO_LJ["sigma"], CO_LJ["rc"], True),
                          (*CO_BS, 4.0, False), timestep_fs=dt)
         lmp.run(int(round(t_fs / dt)))
         xl, _, sl = lmp.state()
@@ -83,12 +83,12 @@ def test_suzuki_trotter_follows_lammps_step_for_step():
     hbar = ase_spin.HBAR_LAMMPS
     ratio = (1000.0 * units.fs) ** 2 * 1.0364269e-4
     for lattice in ("moving", "frozen"):
-        atoms = fcc_cobalt(3)
+        atoms = fcc_cobalt(3, conventions="lammps")
         velocities = atoms.get_velocities()
         atoms.set_masses(atoms.get_masses() * ratio)
         atoms.set_velocities(velocities)
         ase_spin.SuzukiTrotter(atoms, 0.1 * units.fs, hbar=hbar, lattice=lattice).run(100)
-        lmp = LammpsSpin(fcc_cobalt(3), (CO_LJ["epsilon"], CO_LJ["sigma"], CO_LJ["rc"], True),
+        lmp = LammpsSpin(fcc_cobalt(3, conventions="lammps"), (CO_LJ["epsilon"], CO_LJ["sigma"], CO_LJ["rc"], True),
                          (*CO_BS, 4.0, False), timestep_fs=0.1, lattice=lattice)
         lmp.run(100)
         x, v, s = lmp.state()
@@ -110,16 +110,16 @@ def _spin_fix_scene(seed=5):
 
 #: (ase_spin terms, the LAMMPS fix precession/spin arguments)
 SPIN_FIXES = {
-    "zeeman": (lambda: [ase_spin.Zeeman(12.5, [0.3, -0.4, 1.0], mu_B=ase_spin.MU_B_LAMMPS)],
+    "zeeman": (lambda: [ase_spin.Zeeman(12.5, [0.3, -0.4, 1.0])],
                "zeeman 12.5 0.3 -0.4 1.0"),
     "anisotropy": (lambda: [ase_spin.UniaxialAnisotropy(3e-3, [1.0, 0.5, -0.2])],
                    "anisotropy 0.003 1.0 0.5 -0.2"),
-    "easy-plane+zeeman": (lambda: [ase_spin.Zeeman(4.0, [0, 0, 1], mu_B=ase_spin.MU_B_LAMMPS),
+    "easy-plane+zeeman": (lambda: [ase_spin.Zeeman(4.0, [0, 0, 1]),
                                    ase_spin.UniaxialAnisotropy(-2e-3, [0, 0, 1])],
                           "zeeman 4.0 0 0 1 anisotropy -0.002 0 0 1"),
     "cubic": (lambda: [ase_spin.CubicAnisotropy(2e-3, 7e-3, [[1, 1, 0], [-1, 1, 0], [0, 0, 1]])],
               "cubic 0.002 0.007 1 1 0 -1 1 0 0 0 1"),
-    "all": (lambda: [ase_spin.Zeeman(3.0, [1, 0, 0], mu_B=ase_spin.MU_B_LAMMPS),
+    "all": (lambda: [ase_spin.Zeeman(3.0, [1, 0, 0]),
                      ase_spin.UniaxialAnisotropy(1e-3, [0, 1, 1]),
                      ase_spin.CubicAnisotropy(-4e-3, 1e-3)],
             "zeeman 3.0 1 0 0 anisotropy 0.001 0 1 1 cubic -0.004 0.001 1 0 0 0 1 0 0 0 1"),
@@ -127,7 +127,7 @@ SPIN_FIXES = {
 
 
 def _with_fixes(atoms, extra, **kw):
-    atoms.calc = ase_spin.SpinLatticeCalculator([
+    atoms.calc = lammps_calculator([
         ase_spin.LennardJones(**CO_LJ, cutoff="shift"),
         ase_spin.Exchange(ase_spin.BetheSlater(*CO_BS), rc=4.0), *extra()])
     return atoms
@@ -175,12 +175,12 @@ def test_suzuki_trotter_with_precession_fix_follows_lammps(case):
     hbar = ase_spin.HBAR_LAMMPS
     ratio = (1000.0 * units.fs) ** 2 * 1.0364269e-4
     for lattice in ("moving", "frozen"):
-        atoms = _with_fixes(fcc_cobalt(3), extra)
+        atoms = _with_fixes(fcc_cobalt(3, conventions="lammps"), extra)
         velocities = atoms.get_velocities()
         atoms.set_masses(atoms.get_masses() * ratio)
         atoms.set_velocities(velocities)
         ase_spin.SuzukiTrotter(atoms, 0.1 * units.fs, hbar=hbar, lattice=lattice).run(100)
-        lmp = _lammps_with_fixes(fcc_cobalt(3), args, timestep_fs=0.1, lattice=lattice)
+        lmp = _lammps_with_fixes(fcc_cobalt(3, conventions="lammps"), args, timestep_fs=0.1, lattice=lattice)
         lmp.run(100)
         x, v, s = lmp.state()
         lmp.close()
@@ -208,7 +208,7 @@ PAIR_TERMS = {
 
 
 def _with_pair(atoms, make):
-    atoms.calc = ase_spin.SpinLatticeCalculator([
+    atoms.calc = lammps_calculator([
         ase_spin.LennardJones(**CO_LJ, cutoff="shift"),
         ase_spin.Exchange(ase_spin.BetheSlater(*CO_BS), rc=4.0), make()])
     return atoms
@@ -258,12 +258,12 @@ def test_suzuki_trotter_with_spin_pair_terms_follows_lammps(case, lattice):
     make, pair = PAIR_TERMS[case]
     hbar = ase_spin.HBAR_LAMMPS
     ratio = (1000.0 * units.fs) ** 2 * 1.0364269e-4
-    atoms = _with_pair(fcc_cobalt(3), make)
+    atoms = _with_pair(fcc_cobalt(3, conventions="lammps"), make)
     velocities = atoms.get_velocities()
     atoms.set_masses(atoms.get_masses() * ratio)
     atoms.set_velocities(velocities)
     ase_spin.SuzukiTrotter(atoms, 0.1 * units.fs, hbar=hbar, lattice=lattice).run(100)
-    lmp = _lammps_with_pair(fcc_cobalt(3), pair, timestep_fs=0.1, lattice=lattice)
+    lmp = _lammps_with_pair(fcc_cobalt(3, conventions="lammps"), pair, timestep_fs=0.1, lattice=lattice)
     lmp.run(100)
     x, v, s = lmp.state()
     lmp.close()

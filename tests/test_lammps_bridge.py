@@ -17,7 +17,7 @@ from ase.build import bulk
 import ase_spin
 from ase_spin.interop.lammps import LammpsIntegratorWarning, write_lammps
 from ase_spin.interop.lammps_dump import read_lammps_spin_dump
-from lammps_peer import LAMMPS_HBAR, lammps_available, load_lammps
+from lammps_peer import EV_PER_FM, lammps_available, lammps_calculator, load_lammps
 from ase_spin.scenes import cone
 
 needs_lammps = pytest.mark.skipif(not lammps_available(), reason="lammps not importable")
@@ -37,7 +37,7 @@ def _terms(cubic=False):
         ase_spin.Exchange({("Co", "Co"): bs,
                            ("Co", "Fe"): ase_spin.BetheSlater(0.03, 0.002, 1.5),
                            ("Fe", "Fe"): ase_spin.BetheSlater(0.05, 0.0, 1.45)}, rc=4.0),
-        ase_spin.Zeeman(20.0, [0.3, -0.4, 1.0], mu_B=ase_spin.MU_B_LAMMPS),
+        ase_spin.Zeeman(20.0, [0.3, -0.4, 1.0]),
         ase_spin.UniaxialAnisotropy({"Co": 3e-3, "Fe": -2e-3}, [1.0, 0.5, -0.2]),
     ]
     if cubic:
@@ -59,7 +59,7 @@ def _scene(atoms=None, seed=3, cubic=False):
     m = atoms.get_masses()[:, None]
     p = rng.normal(size=(len(atoms), 3)) * np.sqrt(m * units.kB * 200.0)
     atoms.set_momenta(p - p.mean(axis=0))
-    atoms.calc = ase_spin.SpinLatticeCalculator(_terms(cubic))
+    atoms.calc = lammps_calculator(_terms(cubic))
     return atoms
 
 
@@ -175,7 +175,7 @@ def test_mpi_run_follows_suzuki_trotter_in_the_sector_order(tmp_path):
     order = _sector_order(atoms, 2)
     assert not np.array_equal(order, np.arange(len(atoms)))
     reference = _lammps_masses(_scene()[order])
-    reference.calc = ase_spin.SpinLatticeCalculator(_terms())
+    reference.calc = lammps_calculator(_terms())
     _compare(frames, reference, ase_spin.SuzukiTrotter(reference, 0.1 * units.fs,
                                                        hbar=ase_spin.HBAR_LAMMPS), 10,
              order=order)
@@ -224,8 +224,8 @@ def _open_scene(kind):
 def _site_only_scene(kind):
     atoms = bulk("Fe", "bcc", a=2.87, cubic=True).repeat(3)
     ase_spin.set_spins(atoms, np.random.default_rng(1).normal(size=(len(atoms), 3)), 2.2)
-    atoms.calc = ase_spin.SpinLatticeCalculator([
-        ase_spin.Zeeman(10.0, [0, 0, 1], mu_B=ase_spin.MU_B_LAMMPS),
+    atoms.calc = lammps_calculator([
+        ase_spin.Zeeman(10.0, [0, 0, 1]),
         ase_spin.CubicAnisotropy(-2e-3, 1e-3)])
     return atoms
 
@@ -264,8 +264,9 @@ def test_round_trip_through_data_file_and_dump(tmp_path):
     terms[0] = ase_spin.LennardJones(0.4, 2.2742, 4.7, cutoff="shift")
     terms[1] = ase_spin.Exchange(ase_spin.BetheSlater(0.0446928, 0.003496, 1.4885), rc=4.0)
     terms[3] = ase_spin.UniaxialAnisotropy(3e-3, [0, 0, 1])
-    # the physical Zeeman energy with CODATA's μB: LAMMPS's field scaled to match it
-    terms[2] = ase_spin.Zeeman([0.0, 30.0, 40.0], g=1.0)
+    # the physical Zeeman energy with CODATA's μB (the default conventions): LAMMPS's
+    # field scaled to match it
+    terms[2] = ase_spin.Zeeman([0.0, 30.0, 40.0])
     atoms.calc = ase_spin.SpinLatticeCalculator(terms)
     files = write_lammps(tmp_path, atoms, timestep=0.1 * units.fs, steps=0)
     deck = files.input.read_text()
@@ -312,7 +313,7 @@ def test_reader_names_types_from_symbols_or_data_and_refuses_without(tmp_path):
     assert np.allclose(a.get_initial_magnetic_moments(), [[1.5, 0, 0], [0, 0, 2.0]])
     assert np.allclose(a.get_forces(), [[0, 0.2, 0], [0.1, 0, 0]])
     assert np.allclose(a.calc.results["magnetic_forces"][0],
-                       [0, LAMMPS_HBAR, 0])
+                       [0, EV_PER_FM, 0])
     assert a.info["timestep"] == 5
 
 
@@ -328,7 +329,7 @@ def test_terms_without_lammps_counterpart_are_refused_by_name(tmp_path):
 
     atoms = bulk("Co", "fcc", a=3.54, cubic=True).repeat(2)
     ase_spin.set_spins(atoms, [0, 0, 1], 1.7)
-    atoms.calc = ase_spin.SpinLatticeCalculator([
+    atoms.calc = lammps_calculator([
         ase_spin.LennardJones(0.4, 2.2742, 4.7, cutoff="smooth"),
         ase_spin.Exchange(ase_spin.Cubic(0.1, 3.0)),
         ase_spin.Exchange(MyCoupling())])
@@ -352,9 +353,10 @@ def test_integrators_map_refuse_or_warn(tmp_path):
     deck = files.input.read_text()
     assert "fix integrate all nve/spin lattice frozen" in deck
     assert "timestep 0.0002" in deck and "# NOTE: LAMMPS has no collective" in deck
-    # default ħ differs from LAMMPS's: said so
+    # an ħ other than LAMMPS's: said so
     with pytest.warns(LammpsIntegratorWarning, match="ħ"):
-        write_lammps(tmp_path / "b", atoms, ase_spin.SuzukiTrotter(atoms, 0.1 * units.fs))
+        write_lammps(tmp_path / "b", atoms, ase_spin.SuzukiTrotter(atoms, 0.1 * units.fs,
+                                                                   hbar=ase_spin.HBAR))
     for kw, word in ((dict(precession="spin"), "precession"),
                      (dict(gyromagnetic="moment"), "1/μ_i")):
         with pytest.raises(ValueError, match=word):
@@ -436,7 +438,7 @@ def test_dmi_and_biquadratic_exchange_export_follows_suzuki_trotter(tmp_path):
 
     def scene():
         atoms = _scene()
-        atoms.calc = ase_spin.SpinLatticeCalculator([*_terms(), *extra()])
+        atoms.calc = lammps_calculator([*_terms(), *extra()])
         return atoms
 
     atoms = scene()
@@ -478,7 +480,7 @@ def test_eam_export_follows_suzuki_trotter(tmp_path):
         m = atoms.get_masses()[:, None]
         p = rng.normal(size=(len(atoms), 3)) * np.sqrt(m * units.kB * 300.0)
         atoms.set_momenta(p - p.mean(axis=0))
-        atoms.calc = ase_spin.SpinLatticeCalculator([
+        atoms.calc = lammps_calculator([
             ase_spin.EAM(path),
             ase_spin.Exchange(ase_spin.BetheSlater(0.02726, 0.2171, 1.841), rc=3.4)])
         return atoms

@@ -20,7 +20,7 @@ from ase.md.langevin import Langevin as AseLangevin
 from scipy import integrate
 
 import ase_spin
-from ase_spin import (HBAR, MU_B, Exchange, BetheSlater, Langevin, LennardJones,
+from ase_spin import (G_ELECTRON, HBAR, MU_B, Exchange, BetheSlater, Langevin, LennardJones,
                       SpinLatticeCalculator, UniaxialAnisotropy, Zeeman, relax_spins,
                       set_spins)
 from ase_spin.md.langevin import NOISY_TOL
@@ -270,8 +270,8 @@ def test_zero_temperature_damped_precession_second_order(precession, gyromagneti
     H = 50.0
     lam = 0.1
     s0 = np.array([np.sin(2.5), 0.0, np.cos(2.5)])
-    rate = 1.0 if gyromagnetic == "lammps" else 2.0 / mu
-    Bvec = np.array([0, 0, 2.0 * MU_B * mu * H])
+    rate = 1.0 if gyromagnetic == "lammps" else G_ELECTRON / mu
+    Bvec = np.array([0, 0, MU_B * mu * H])  # the physical Zeeman energy −μ μB s·H
     omega = rate * np.linalg.norm(Bvec) / HBAR
     t_end = 20.0 / omega
     errors = []
@@ -483,7 +483,7 @@ def test_set_temperature_takes_effect_mid_run():
     """Spins in a field at 500 K, then set_temperature(0): with damping they
     relax onto the field (no noise left in the step)."""
     atoms = gas(np.full(8, 2.0))
-    atoms.calc = SpinLatticeCalculator([Zeeman(100.0, [0, 0, 1])])
+    atoms.calc = SpinLatticeCalculator([Zeeman(200.0, [0, 0, 1])])
     dyn = Langevin(atoms, 2.0 * units.fs, 500.0, spin_damping=1.0, friction=0.0,
                    lattice="frozen", rng=1)
     dyn.run(20)
@@ -520,8 +520,9 @@ def stationary_bias(omega_h, per=1024, steps=1500, amplitude=None, dimer_j=0.0, 
     if amplitude is not None:
         langevin.noise_amplitude = amplitude
     try:
+        # rate 1 (LAMMPS's precession): ω above is the precession rate
         dyn = Langevin(atoms, omega_h / omega, T, spin_damping=1.0, friction=0.0,
-                       lattice="frozen", rng=3, max_iter=1000)
+                       lattice="frozen", rng=3, max_iter=1000, gyromagnetic="lammps")
         dyn.run(200)
         u, c = spin_time_averages(dyn, steps, lambda s: s[:, 2],
                                   lambda s: np.einsum("ij,ij->i", s[0::2], s[1::2]),

@@ -195,7 +195,7 @@ def test_terms_without_compiled_pieces_take_the_general_path(case, monkeypatch):
         terms = [lj, Exchange(_PythonCubic(exchange.coupling.J0, exchange.coupling.rc))]
     used = _spy_fused(monkeypatch)
     atoms = paper_chain()
-    atoms.calc = SpinLatticeCalculator(terms)
+    atoms.calc = SpinLatticeCalculator(terms, conventions="paper")
     slow = _trajectory(CollectivePRK, atoms, 2.0**-6, 40, hbar=1.0, precession="spin")
     assert used["done"] == 0 and used["general"] > 0
     fast = _trajectory(CollectivePRK, paper_chain(), 2.0**-6, 40, hbar=1.0, precession="spin")

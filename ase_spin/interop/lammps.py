@@ -30,7 +30,8 @@ import numpy as np
 from ase import units
 
 from ..calculator import SpinLatticeCalculator
-from ..constants import LAMMPS_HBAR_EV_PS
+from ..constants import HBAR_LAMMPS
+from ..conventions import PHYSICAL
 from ..hamiltonian import Hamiltonian
 from ..md.base import SpinLatticeDynamics
 from ..md.collective import CollectivePRK
@@ -59,10 +60,13 @@ class LammpsTypes:
     ``symbols[k]`` is the species of type k + 1; ``magnetic[k]`` whether its
     atoms carry moments (a species is all magnetic or all non-magnetic);
     ``rotation``: lab-frame vectors v are ``v @ rotation`` in LAMMPS's frame
-    (:meth:`vector`); ``group(symbol)`` names the group of one species.
+    (:meth:`vector`); ``group(symbol)`` names the group of one species;
+    ``conventions``: the scene's (:mod:`ase_spin.conventions`), which a term
+    translates into LAMMPS's.
     """
 
-    def __init__(self, symbols, magnetic, rotation=None):
+    def __init__(self, symbols, magnetic, rotation=None, conventions=PHYSICAL):
+        self.conventions = conventions
         self.symbols = tuple(symbols)
         self.magnetic = tuple(bool(m) for m in magnetic)
         self.rotation = None if rotation is None else np.asarray(rotation, dtype=float)
@@ -248,7 +252,9 @@ def _integrator(dyn, timestep, lattice, notices):
     if dyn.gyromagnetic != "lammps":
         raise ValueError("LAMMPS SPIN's precession has no 1/μ_i (gyromagnetic=\"lammps\"); this "
                          f"integrator has gyromagnetic={dyn.gyromagnetic!r}, a different equation "
-                         "of motion that LAMMPS cannot run")
+                         "of motion that LAMMPS cannot run: build the scene with "
+                         "SpinLatticeCalculator(..., conventions=\"lammps\") (or pass "
+                         "gyromagnetic=\"lammps\" to the integrator) to export it")
     if isinstance(dyn, CollectivePRK):
         notices.append("LAMMPS has no collective (CollectivePRK) integrator: the deck uses fix "
                        "nve/spin, the sequential Suzuki–Trotter splitting (SuzukiTrotter here); "
@@ -262,9 +268,9 @@ def _integrator(dyn, timestep, lattice, notices):
     if getattr(dyn, "rotation", "cayley") != "cayley":
         notices.append("rotation=\"exact\" differs from LAMMPS's Cayley rotation of each spin; "
                        "trajectories agree to O(dt²)")
-    if abs(dyn.hbar / (LAMMPS_HBAR_EV_PS * PS) - 1.0) > 1e-12:
+    if abs(dyn.hbar / HBAR_LAMMPS - 1.0) > 1e-12:
         notices.append(f"the integrator's ħ ({dyn.hbar / PS:.10g} eV·ps) is not LAMMPS's "
-                       f"({LAMMPS_HBAR_EV_PS:.10g} eV·ps), which the deck will use")
+                       f"({HBAR_LAMMPS / PS:.10g} eV·ps), which the deck will use")
     thermostat = None
     if hasattr(dyn, "spin_damping"):
         T = _attr(dyn, ("temperature_K",), None)
@@ -417,7 +423,7 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
             if not cell[d, d] > 0:
                 cell[d, d] = 1.0  # a placeholder: shrink-wrapped to the atoms
     box, rotation = _lammps_frame(cell)
-    types = LammpsTypes(species, magnetic, rotation)
+    types = LammpsTypes(species, magnetic, rotation, hamiltonian.conventions)
     parts = _term_parts(hamiltonian, types)
     for text in notices:
         warnings.warn(text, LammpsIntegratorWarning, stacklevel=2)

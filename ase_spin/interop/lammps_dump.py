@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from ase import Atoms
 
-from ..constants import LAMMPS_HBAR_EV_PS
+from ..constants import HBAR_LAMMPS
 from .lammps import HEADER, PS
 
 __all__ = ["read_lammps_spin_dump"]
@@ -166,7 +166,7 @@ def read_lammps_spin_dump(path, index=":", *, data=None, symbols=None, energy=No
             atoms.calc = SinglePointCalculator(atoms, **results)
         if fm is not None:
             # not an ASE property name: set after (SinglePointCalculator refuses it)
-            atoms.calc.results["magnetic_forces"] = back(fm) * LAMMPS_HBAR_EV_PS
+            atoms.calc.results["magnetic_forces"] = back(fm) * (HBAR_LAMMPS / PS)
         atoms.info["timestep"] = step
         out.append(atoms)
     return out if isinstance(index, slice) else out[0]

@@ -24,7 +24,8 @@ from ase.md.md import MolecularDynamics
 
 from .._jit.threads import AdaptiveThreads
 from ..calculator import SpinLatticeCalculator
-from ..constants import HBAR
+from ..constants import HBAR, HBAR_LAMMPS
+from ..conventions import PHYSICAL
 from ..io.progress import run_with_progress
 from ..io.trajectories import check_trajectory_target
 from ..spins import name_atoms, split_moments
@@ -62,12 +63,15 @@ PROBE_BLOCK = 16
 class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynamics):
     """Base of the spin–lattice integrators (see the module docstring).
 
-    Parameters common to all: ``timestep`` (ASE time units), ``hbar`` (default
-    :data:`HBAR`), ``precession`` ("moment": σ = −1, LAMMPS; "spin": σ = +1, the
-    paper), ``gyromagnetic`` ("lammps": ds_i/dt = (σ/ħ) s_i × B_i whatever the
-    moment, LAMMPS SPIN's equation; "moment": ds_i/dt = (σ g/(μ_i ħ)) s_i × B_i,
-    the Landau–Lifshitz precession of a moment μ_i μB, with ``g`` = 2 by
-    default), ``order``/``composition`` (symmetric compositions of the step),
+    Parameters common to all: ``timestep`` (ASE time units), ``hbar`` (eV·(ASE
+    time)), ``precession`` ("moment": σ = −1, physical and LAMMPS; "spin": σ = +1,
+    the paper's), ``gyromagnetic`` ("moment": ds_i/dt = (σ g/(μ_i ħ)) s_i × B_i,
+    the Landau–Lifshitz precession of a moment μ_i μB; "lammps": ds_i/dt =
+    (σ/ħ) s_i × B_i whatever the moment, LAMMPS SPIN's equation) and ``g``:
+    by default those of the calculator's conventions (physical: CODATA ħ,
+    "moment", the electron's g; "lammps": LAMMPS's ħ, "lammps"; "paper": ħ = 1,
+    "spin"; see
+    :mod:`ase_spin.conventions`), ``order``/``composition`` (symmetric compositions of the step),
     ``lattice`` ("moving" or "frozen"), ``threads`` ("auto": all configured
     threads or one, whichever runs the steps faster right now, see
     :class:`~ase_spin._jit.threads.AdaptiveThreads`; or a fixed count; default from
@@ -77,15 +81,23 @@ class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynami
 
     half_lists = True
 
-    def __init__(self, atoms, timestep, *, hbar=None, precession="moment",
-                 gyromagnetic="lammps", g=2.0, order=2, composition=None, lattice="moving",
+    def __init__(self, atoms, timestep, *, hbar=None, precession=None,
+                 gyromagnetic=None, g=None, order=2, composition=None, lattice="moving",
                  threads=None, trajectory=None, logfile=None, loginterval=1, **kwargs):
+        calc = getattr(atoms, "calc", None)
+        #: the calculator's conventions, the defaults of ħ, precession, gyromagnetic, g
+        self.conventions = (calc.hamiltonian.conventions
+                            if isinstance(calc, SpinLatticeCalculator) else PHYSICAL)
+        if precession is None:
+            precession = self.conventions.precession
         if not isinstance(precession, str) or precession not in ("moment", "spin"):
             raise ValueError(f'precession must be "moment" or "spin", got {precession!r}')
+        if gyromagnetic is None:
+            gyromagnetic = self.conventions.gyromagnetic
         if not isinstance(gyromagnetic, str) or gyromagnetic not in ("lammps", "moment"):
             raise ValueError(f'gyromagnetic must be "lammps" or "moment", got {gyromagnetic!r}')
         self.gyromagnetic = gyromagnetic
-        self.g = positive_scalar(g, "g")
+        self.g = self.conventions.g if g is None else positive_scalar(g, "g")
         if not isinstance(lattice, str) or lattice not in ("moving", "frozen"):
             raise ValueError(f'lattice must be "moving" or "frozen", got {lattice!r}')
         timestep = real_scalar(timestep, "timestep")
@@ -93,7 +105,7 @@ class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynami
             raise ValueError("timestep must be non-zero")
         self.precession = precession
         self.sigma = -1.0 if precession == "moment" else 1.0
-        self.hbar = HBAR if hbar is None else positive_scalar(hbar, "hbar")
+        self.hbar = self.conventions.hbar if hbar is None else checked_hbar(hbar)
         self.order, self.gammas = composition_coefficients(order, composition)
         self.frozen_lattice = lattice == "frozen"
         self.threads = AdaptiveThreads(threads)
@@ -152,6 +164,12 @@ class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynami
         if not isinstance(calc, SpinLatticeCalculator):
             raise TypeError(f"{type(self).__name__} needs atoms.calc to be an ase_spin "
                             f"SpinLatticeCalculator, got {type(calc).__name__}")
+        if calc.hamiltonian.conventions != self.conventions:
+            raise ValueError(
+                f"the calculator follows the {calc.hamiltonian.conventions.name!r} conventions "
+                f"but {type(self).__name__} was made under {self.conventions.name!r} ones "
+                "(atoms.calc was set or replaced after it): make the integrator after "
+                "setting atoms.calc")
         if calc.hamiltonian.cutoff > 0.0 and not calc.hamiltonian.skin > 0.0:
             raise ValueError(f"{type(self).__name__} needs a neighbour-list skin > 0 (the "
                              "calculator's skin=...): one pair list serves q and q̃")
@@ -434,3 +452,21 @@ def _checked_momenta(atoms):
     if bad.size:
         raise ValueError(f"momenta are not finite for {name_atoms(bad)}")
     return p
+
+
+#: ħ in units users write by mistake (their size in eV·(ASE time) per unit)
+_OTHER_HBAR_UNITS = {"eV·ps": 1000.0 * units.fs, "eV·fs (or meV·ps)": units.fs,
+                     "eV·s": units.s, "J·s": units.J * units.s}
+
+
+def checked_hbar(hbar):
+    """``hbar`` (eV·(ASE time)), refused where it is the value of ħ in another
+    unit (eV·ps, eV·fs, meV·ps, eV·s, J·s): a wrong trajectory otherwise."""
+    hbar = positive_scalar(hbar, "hbar")
+    for name, unit in _OTHER_HBAR_UNITS.items():
+        if abs(hbar * unit / HBAR - 1.0) < 1e-5:
+            raise ValueError(
+                f"hbar={hbar:.10g} is ħ in {name}; integrators take ħ in eV·(ASE time unit): "
+                f"ase_spin.constants.HBAR = {HBAR:.10g} (CODATA) or HBAR_LAMMPS = "
+                f"{HBAR_LAMMPS:.10g} (LAMMPS's), or leave hbar out (the conventions' ħ)")
+    return hbar

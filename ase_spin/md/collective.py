@@ -94,18 +94,16 @@ class CollectivePRK(SpinLatticeDynamics):
         :func:`~ase_spin.set_spins` (atoms with zero moment are non-magnetic).
     timestep : float
         In ASE time units (``0.1 * ase.units.fs``).
-    hbar : float, optional
-        ħ in eV·(ASE time); default the physical value :data:`HBAR`. The paper's
-        reduced units are ``hbar=1``.
-    precession : "moment" or "spin"
-        σ = −1 (LAMMPS SPIN, ds/dt = ω × s with ω = B/ħ; the default) or σ = +1
-        (the paper's spin convention).
-    gyromagnetic : "lammps" or "moment"
-        The precession rate: (σ/ħ) s_i × B_i whatever the moment (LAMMPS SPIN;
-        the default), or (σ g/(μ_i ħ)) s_i × B_i, the Landau–Lifshitz precession
-        of a moment μ_i μB (Spirit, UppASD); see docs/conventions.md.
-    g : float
-        The g-factor of the "moment" precession (default 2).
+    hbar, precession, gyromagnetic, g : optional
+        The spin equation of motion ds_i/dt = (σ r_i/ħ) s_i × B_i; each
+        defaults to the calculator's conventions (:mod:`ase_spin.conventions`;
+        physical: CODATA ħ, σ = −1, r_i = g_e/μ_i, the Larmor precession of
+        a moment μ_i μB). ``hbar`` in eV·(ASE time) (:data:`HBAR`, the paper's
+        reduced units 1); ``precession`` "moment" (σ = −1, ds/dt = ω × s with
+        ω = r B/ħ, physical and LAMMPS SPIN) or "spin" (σ = +1, the paper's);
+        ``gyromagnetic`` "moment" (r_i = g/μ_i: Spirit, UppASD) or "lammps"
+        (r_i = 1: LAMMPS SPIN, whatever the moment); ``g`` the g-factor of
+        the "moment" rate.
     order : 2, 4 or 6
         4 and 6 are symmetric compositions of the second-order step (Suzuki's
         five-stage and Kahan–Li's nine-stage); ``composition`` picks another
@@ -152,8 +150,8 @@ class CollectivePRK(SpinLatticeDynamics):
         Preparations of the spin operators at q̃ in the last step.
     """
 
-    def __init__(self, atoms, timestep, *, hbar=None, precession="moment",
-                 gyromagnetic="lammps", g=2.0, order=2, composition=None, tol=None,
+    def __init__(self, atoms, timestep, *, hbar=None, precession=None,
+                 gyromagnetic=None, g=None, order=2, composition=None, tol=None,
                  max_iter=None, solver=None, lattice="moving", trajectory=None, logfile=None,
                  loginterval=1, **kwargs):
         self.tol = 1e-15 if tol is None else real_scalar(tol, "tol")

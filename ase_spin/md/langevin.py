@@ -160,8 +160,8 @@ class Langevin(BathHalfSteps, CollectivePRK):
     compiled_blocks = False
 
     def __init__(self, atoms, timestep, temperature_K, *, spin_damping, friction,
-                 spin_temperature_K=None, hbar=None, precession="moment",
-                 gyromagnetic="lammps", order=2, fixcm=True, rng=None, trajectory=None,
+                 spin_temperature_K=None, hbar=None, precession=None,
+                 gyromagnetic=None, order=2, fixcm=True, rng=None, trajectory=None,
                  logfile=None, loginterval=1, **kwargs):
         self.temp = _temperature(temperature_K, "temperature_K") * units.kB
         self.spin_temp = (self.temp if spin_temperature_K is None else
@@ -431,7 +431,7 @@ class Langevin(BathHalfSteps, CollectivePRK):
 
 
 def relax_spins(atoms, *, fmax=1e-6, damping=1.0, timestep=None, steps=100_000,
-                hbar=None, gyromagnetic="lammps", **kwargs):
+                hbar=None, gyromagnetic=None, **kwargs):
     r"""Relax the spins to a (local) minimum of the energy at fixed positions:
     zero-temperature damped Landau–Lifshitz–Gilbert dynamics (:class:`Langevin`
     with T_s = 0, frozen lattice), the damped-precession path of each spin

@@ -22,13 +22,20 @@ __all__ = ["reference_solution"]
 _WANT = Want(forces=True, magnetic_forces=True)
 
 
-def reference_solution(atoms, t_end, *, hbar, precession="moment", gyromagnetic="lammps",
-                       g=2.0, rtol=1e-13, atol=1e-14, frozen_lattice=False):
+def reference_solution(atoms, t_end, *, hbar=None, precession=None, gyromagnetic=None,
+                       g=None, rtol=1e-13, atol=1e-14, frozen_lattice=False):
     """(positions, momenta, spins) at ``t_end`` (ASE time) from the state of ``atoms``.
 
     ``atoms.calc`` must be a SpinLatticeCalculator; the Atoms are not changed.
-    ``gyromagnetic="moment"`` multiplies spin i's precession by g/μ_i.
+    ``hbar``, ``precession``, ``gyromagnetic`` and ``g`` default to the calculator's conventions,
+    as in the integrators; ``gyromagnetic="moment"`` multiplies spin i's
+    precession by g/μ_i.
     """
+    conventions = atoms.calc.hamiltonian.conventions
+    hbar = conventions.hbar if hbar is None else hbar
+    precession = conventions.precession if precession is None else precession
+    gyromagnetic = conventions.gyromagnetic if gyromagnetic is None else gyromagnetic
+    g = conventions.g if g is None else g
     ev, moments = atoms.calc.bound_evaluator(atoms)
     spins, mu = split_moments(moments)
     rate = np.ones((len(mu), 1))

@@ -60,8 +60,8 @@ class SuzukiTrotter(SpinLatticeDynamics):
 
     half_lists = False  # the sweeps gather each spin's field from a full list
 
-    def __init__(self, atoms, timestep, *, hbar=None, precession="moment",
-                 gyromagnetic="lammps", g=2.0, rotation="cayley", order=2, composition=None,
+    def __init__(self, atoms, timestep, *, hbar=None, precession=None,
+                 gyromagnetic=None, g=None, rotation="cayley", order=2, composition=None,
                  lattice="moving", **kwargs):
         if not isinstance(rotation, str) or rotation not in ("cayley", "exact"):
             raise ValueError(f'rotation must be "cayley" or "exact", got {rotation!r}')

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._jit import threads
+from ..conventions import PHYSICAL, Conventions
 from .parameters import Parameterised
 from .skeletons import compile_pair_pass, compile_site_pass
 
@@ -46,12 +47,14 @@ class Species:
 @dataclass(frozen=True)
 class System:
     """What a term binds to: the system's species, which atoms are magnetic and
-    their moment magnitudes μ_i (μB), its cell and periodicity."""
+    their moment magnitudes μ_i (μB), its cell and periodicity, and the
+    Hamiltonian's :class:`~ase_spin.conventions.Conventions`."""
 
     species: Species
     moments: np.ndarray
     cell: np.ndarray
     pbc: np.ndarray
+    conventions: Conventions = PHYSICAL
 
     @property
     def types(self):

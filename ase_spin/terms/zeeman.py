@@ -5,7 +5,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..constants import MU_B, MU_B_LAMMPS
+from ..constants import MU_B_LAMMPS
 from ..validate import positive_scalar, real_array, real_scalar, unit_vector
 from .base import SingleSiteTerm
 from .lammps_form import LammpsFix, number_text, vector_text
@@ -34,16 +34,15 @@ class Zeeman(SingleSiteTerm):
         \mathbf B_i = -\frac{\partial E}{\partial \mathbf s_i} = g\,\mu_B\,\mu_i\,\mathbf H,
 
     with μ_i the atom's moment magnitude (|initial_magmoms|, μB) and μ_B in
-    eV/T. ``g = 2`` and ``mu_B``'s default are LAMMPS's choices for ``fix
-    precession/spin zeeman`` (which reads μ_i as the spin length: its moment is
-    then g μ_i μ_B); with ``initial_magmoms`` holding true moments the
-    physical Zeeman energy is −μ_i μ_B s·H, ``g=1``: see docs/conventions.md.
+    eV/T. ``g`` and ``mu_B`` follow the Hamiltonian's conventions unless
+    given: physical (default) g = 1 and CODATA μB, the energy −μ_i μB s·H of
+    a moment μ_i μB; LAMMPS's ``fix precession/spin zeeman`` g = 2 and its
+    μB' = 5.78901e-5 eV/T (it reads μ_i as a spin length, its moment then
+    g μ_i μB'). See :mod:`ase_spin.conventions`.
 
     ``field``: the field in tesla, a 3-vector, or its magnitude with
     ``direction`` (any non-zero 3-vector, normalised here) as in LAMMPS's
-    ``zeeman H x y z``. ``mu_B``: the Bohr magneton in eV/T, default
-    :data:`~ase_spin.constants.MU_B`; LAMMPS's is
-    :data:`~ase_spin.constants.MU_B_LAMMPS`.
+    ``zeeman H x y z``.
     """
 
     name = "zeeman"
@@ -52,7 +51,7 @@ class Zeeman(SingleSiteTerm):
 
     _parameters = {"field": "field", "direction": "direction", "g": "g", "mu_B": "mu_B"}
 
-    def __init__(self, field, direction=None, *, g=2.0, mu_B=None):
+    def __init__(self, field, direction=None, *, g=None, mu_B=None):
         if direction is None:
             H = real_array(field, "Zeeman field").reshape(-1)
             if H.shape != (3,) or not np.isfinite(H).all():
@@ -67,18 +66,26 @@ class Zeeman(SingleSiteTerm):
         H.setflags(write=False)  # edited in place, bound tables would go stale unnoticed
         #: the field vector (T)
         self.H = H
-        self.g = real_scalar(g, "Zeeman g")
-        self.mu_B = MU_B if mu_B is None else positive_scalar(mu_B, "Zeeman mu_B")
+        #: as given (None: from the Hamiltonian's conventions)
+        self.g = None if g is None else real_scalar(g, "Zeeman g")
+        self.mu_B = None if mu_B is None else positive_scalar(mu_B, "Zeeman mu_B")
         self._finish()
 
     def __repr__(self):
         return f"Zeeman({self.H.tolist()}, g={self.g}, mu_B={self.mu_B})"
 
+    def energy_scale(self, conventions):
+        """g μB (eV/T) under ``conventions`` (a :class:`~ase_spin.conventions.Conventions`)
+        where not given explicitly."""
+        g = conventions.zeeman_g if self.g is None else self.g
+        mu_B = conventions.mu_B if self.mu_B is None else self.mu_B
+        return g * mu_B
+
     def lammps(self, types):
         """``fix precession/spin zeeman H x y z``: LAMMPS's energy is
         −2 μB' μ_i s·H with its μB' = 5.78901e-5 eV/T, so H is written scaled by
-        g μB / (2 μB') (exactly H with g = 2, ``mu_B=MU_B_LAMMPS``)."""
-        scale = self.g * self.mu_B / (2.0 * MU_B_LAMMPS)
+        g μB / (2 μB') (exactly H under LAMMPS's conventions)."""
+        scale = self.energy_scale(types.conventions) / (2.0 * MU_B_LAMMPS)
         if self.direction is not None:
             magnitude, direction = self.field, self.direction
         else:
@@ -89,5 +96,5 @@ class Zeeman(SingleSiteTerm):
                           f"{vector_text(types.vector(direction))}")]
 
     def bind(self, system):
-        h = (self.g * self.mu_B) * system.moments[:, None] * self.H[None, :]
+        h = self.energy_scale(system.conventions) * system.moments[:, None] * self.H[None, :]
         return (np.ascontiguousarray(h),)
