@@ -5,8 +5,13 @@ exchange, 500 atoms at 100 K, spins in a 30° cone), evaluated through the ASE
 calculator, then integrated with the paper's collective symplectic method as an
 ASE MolecularDynamics: a log line every 50 steps and a trajectory that keeps
 positions, momenta and spins (open it with `ase gui demo.traj`).
+
+    python examples/demo.py [--out demo.traj] [--steps 500]
+
+writes demo.traj in the current folder (or the file --out names).
 """
 
+import argparse
 import time
 
 import numpy as np
@@ -16,6 +21,16 @@ from ase.io import Trajectory, read
 
 import ase_spin
 from ase_spin import BetheSlater, CollectivePRK, Exchange, LennardJones, SpinLatticeCalculator
+
+parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+parser.add_argument("--out", default="demo.traj",
+                    help="the trajectory (default demo.traj here; overwritten)")
+parser.add_argument("--steps", type=int, default=500,
+                    help="steps of 0.1 fs: a multiple of 50 (a frame every 50), at least 100 "
+                         "(the first 50 are timed apart, with the compilation); default 500")
+args = parser.parse_args()
+if args.steps < 100 or args.steps % 50:
+    parser.error("--steps must be a multiple of 50, at least 100")
 
 rng = np.random.default_rng(0)
 atoms = bulk("Co", "fcc", a=3.54, cubic=True).repeat(5)  # 500 atoms
@@ -45,22 +60,24 @@ print()
 # Spin–lattice dynamics: 0.1 fs steps, LAMMPS's precession convention (the default).
 # Integrators never overwrite a trajectory (FileExistsError; append_trajectory=True continues
 # one): this demo opens its own output in write mode to start afresh each time it is run.
-trajectory = Trajectory("demo.traj", "w", atoms)
+trajectory = Trajectory(args.out, "w", atoms)
 dyn = CollectivePRK(atoms, timestep=0.1 * units.fs, trajectory=trajectory,
                     logfile="-", loginterval=50)
 t0 = time.perf_counter()
 dyn.run(50)  # the first call also compiles the kernels (cached on disk afterwards)
 t1 = time.perf_counter()
-dyn.run(450)
+rest = args.steps - 50
+dyn.run(rest)
 elapsed = time.perf_counter() - t1
-print(f"\n500 steps (50 fs): the first 50 in {t1 - t0:.2f} s (with compilation), the next 450 "
-      f"in {elapsed:.2f} s: {elapsed / 450 / len(atoms) * 1e6:.2f} µs per atom-step, "
+print(f"\n{args.steps} steps ({args.steps * 0.1:g} fs): the first 50 in {t1 - t0:.2f} s (with "
+      f"compilation), the next {rest} in {elapsed:.2f} s: "
+      f"{elapsed / rest / len(atoms) * 1e6:.2f} µs per atom-step, "
       f"{dyn.mean_iterations:.1f} midpoint sweeps per step")
 
 trajectory.close()
 spins = ase_spin.get_spins(atoms)
 print(f"spin lengths          max | |s| − 1 | = {np.abs(np.linalg.norm(spins, axis=1) - 1).max():.1e}")
-back = read("demo.traj", index=-1)
+back = read(args.out, index=-1)
 assert np.array_equal(back.get_initial_magnetic_moments(), atoms.get_initial_magnetic_moments())
-print(f"wrote demo.traj ({len(read('demo.traj', ':'))} frames with positions, momenta and "
-      "spins; view with `ase gui demo.traj`)")
+print(f"wrote {args.out} ({len(read(args.out, ':'))} frames with positions, momenta and "
+      f"spins; view with `ase gui {args.out}`)")

@@ -16,7 +16,9 @@ inflection point is a rough, size-dependent estimate, not the bulk value.
     python examples/magnetisation_curve.py            # ~1 min: 108 atoms, 3 replicas
     python examples/magnetisation_curve.py --long     # 500 atoms, 5 replicas, longer runs
 
-writes docs/figures/magnetisation_curve/magnetisation_curve.{png,txt}.
+writes magnetisation_curve.png (the curves) and magnetisation_curve.txt (the
+table) in the current folder, or in the folder --out DIR; --out NAME.png writes
+NAME.png and NAME.txt. The docs' figure: --out docs/figures/magnetisation_curve.
 """
 
 from __future__ import annotations
@@ -32,7 +34,6 @@ from scipy.optimize import curve_fit
 from ase_spin import Langevin
 from ase_spin.scenes import fcc_cobalt
 
-OUT = pathlib.Path(__file__).resolve().parent.parent / "docs" / "figures" / "magnetisation_curve"
 
 
 def heat(n, temperatures, equilibrate, sample, seed, timestep=0.5 * units.fs):
@@ -75,11 +76,24 @@ def curie_temperature(T, M):
     return p[1]
 
 
+def output_paths(out):
+    """(picture, table) for --out: a name ending in .png is the picture, with the
+    table next to it (.txt); anything else is a folder to write
+    magnetisation_curve.png and .txt into."""
+    out = pathlib.Path(out)
+    if out.suffix.lower() == ".png":
+        return out, out.with_suffix(".txt")
+    return out / "magnetisation_curve.png", out / "magnetisation_curve.txt"
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--long", action="store_true", help="500 atoms, 5 replicas, 4x longer")
-    ap.add_argument("--out", type=pathlib.Path, default=OUT)
+    ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("."),
+                    help="folder for magnetisation_curve.png and .txt (default: the current "
+                         "folder), or NAME.png: the picture, with the table in NAME.txt")
     args = ap.parse_args()
+    png, txt = output_paths(args.out)
     if args.long:
         n, replicas, eq, samp = 5, 5, 2000, 4000
         temperatures = np.arange(200.0, 2401.0, 100.0)
@@ -96,11 +110,11 @@ def main():
     print(f"fcc Co, {4 * n**3} atoms, {replicas} replicas: T_C ≈ {tc:.0f} ± {tc_err:.0f} K "
           f"(per replica: {', '.join(f'{t:.0f}' for t in tcs)}); {elapsed:.0f} s")
 
-    args.out.mkdir(parents=True, exist_ok=True)
+    png.parent.mkdir(parents=True, exist_ok=True)
     header = (f"fcc Co {4 * n**3} atoms, {replicas} replicas, equilibrate {eq} + sample {samp} "
               f"steps of 0.5 fs per T; T_C = {tc:.1f} +- {tc_err:.1f} K\n"
               "T_bath[K] |M| se(|M|) Ts[K] T_lattice[K]")
-    np.savetxt(args.out / "magnetisation_curve.txt",
+    np.savetxt(txt,
                np.column_stack([data[:, 0], data[:, 1], spread, data[:, 2], data[:, 3]]),
                header=header, fmt="%.6g")
 
@@ -128,8 +142,8 @@ def main():
     ax2.legend()
     fig.suptitle(f"fcc Co, {4 * n**3} atoms, Langevin (λ = 0.5, γ = 0.02/fs)")
     fig.tight_layout()
-    fig.savefig(args.out / "magnetisation_curve.png", dpi=110)
-    print(f"wrote {args.out / 'magnetisation_curve.png'}")
+    fig.savefig(png, dpi=110)
+    print(f"wrote {png} and {txt}")
 
 
 if __name__ == "__main__":

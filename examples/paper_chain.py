@@ -8,7 +8,9 @@ in the paper's reduced units (ħ = 1) and spin convention (dw/dt = w × B).
 The mapping onto ASE units and this package's sign of J is in
 docs/conventions.md; the Atoms come from ase_spin.scenes.paper_chain().
 
-Writes to --out (default: paper_chain_output/):
+Writes to the folder --out (default: paper_chain_output/ in the current folder; the
+docs' figures: --out docs/figures/paper_chain). Units: energies in eV (= the paper's
+U0), times in ASE time units (the paper's time; 1 ASE time unit = 10.18 fs):
 
 - energy.png, energy.txt   the paper's Figure 1: T_L, U_L (+35), H_m and H over T = 100
 - errors.png, errors.txt   the paper's Figure 2: pseudo-errors at T = 1 for
@@ -63,12 +65,18 @@ def energies(h, t_end=100.0, every=None):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out", default="paper_chain_output")
+    parser.add_argument("--quick", action="store_true",
+                        help="seconds: Figure 2 down to h = 2^-10 against 2^-11, Figure 1 at "
+                             "h = 2^-4")
+    parser.add_argument("--out", default="paper_chain_output",
+                        help="folder for energy.png, errors.png and their tables "
+                             "(default: paper_chain_output)")
     parser.add_argument("--energy-step", type=float, default=None,
                         help="h for Figure 1 (default 2^-6; 2^-4 with --quick)")
     args = parser.parse_args()
     out = Path(args.out)
+    if out.suffix.lower() == ".png":
+        parser.error("--out is a folder: this example writes two pictures and two tables")
     out.mkdir(parents=True, exist_ok=True)
     finest = 11 if args.quick else 20
     exponents = list(range(4, finest))
@@ -119,18 +127,20 @@ def main():
     except ImportError:
         print("matplotlib not installed: tables written, no plots")
         return
-    fig, (ax, dx) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    fig, (ax, dx) = plt.subplots(2, 1, figsize=(9.5, 6), sharex=True)
     t = rows[:, 0]
     curves = [(rows[:, 3], 0, "r", "$H_m$"), (rows[:, 2], 35, "b", "$U_L + 35$"),
               (rows[:, 1], 0, "g", "$T_L$"), (rows[:, 4], 35, "purple", "$H + 35$")]
     for y, offset, color, label in curves:
         ax.plot(t, y + offset, color=color, lw=0.8, label=label)
         dx.plot(t, y - y[0], color=color, lw=0.8, label=label.replace(" + 35", ""))
-    ax.set(ylabel="Energy", xlim=(0, 100),
+    ax.set(ylabel="energy (eV = $U_0$)", xlim=(0, 100),
            title=f"Paper chain, collective PRK, h = {h_energy:g} (as the paper's Figure 1)")
-    ax.legend(loc="upper right", fontsize=8, ncol=4)
-    dx.set(xlabel="Time", ylabel="Change since t = 0")
-    dx.legend(loc="upper right", fontsize=8, ncol=4)
+    # legends beside the axes: the curves span the whole time range
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    dx.set(xlabel="time (ASE units = the paper's; 1 = 10.18 fs)",
+           ylabel="change since t = 0 (eV)")
+    dx.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     fig.tight_layout()
     fig.savefig(out / "energy.png", dpi=120)
     fig, ax = plt.subplots(figsize=(6, 4.5))
@@ -139,7 +149,8 @@ def main():
               label="error vs DOP853")
     hh = np.array([table[-1, 0], table[0, 0]])
     ax.loglog(hh, hh**2, "r--", label="$h^2$")
-    ax.set(xlabel="$h$", ylabel="Error", title="Pseudo-error at T = 1")
+    ax.set(xlabel="step $h$ (ASE time units)",
+           ylabel="error (2-norm over $q$ [Å], $p$, $w$)", title="Pseudo-error at T = 1")
     ax.legend()
     fig.tight_layout()
     fig.savefig(out / "errors.png", dpi=120)

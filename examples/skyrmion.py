@@ -12,9 +12,13 @@ round-off. With ``--relax`` it is first relaxed to the nearest energy
 minimum by damped precession (ase_spin.relax_spins): the skyrmion's own size.
 
     python examples/skyrmion.py [--steps 2000] [--relax] [--out skyrmion.png]
+
+writes skyrmion.png in the current folder (--out NAME.png, or --out DIR for
+DIR/skyrmion.png; the docs' figure: --out docs/figures/skyrmion.png).
 """
 
 import argparse
+from pathlib import Path
 
 import numpy as np
 from ase import Atoms, units
@@ -25,10 +29,13 @@ from ase_spin import DMI, CollectivePRK, Cubic, Exchange, SpinLatticeCalculator,
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--size", type=int, default=30, help="lattice sites along each side")
 parser.add_argument("--steps", type=int, default=2000, help="steps of 1 fs")
-parser.add_argument("--out", default="skyrmion.png", help="picture (needs matplotlib)")
+parser.add_argument("--out", default="skyrmion.png", type=Path,
+                    help="the picture (needs matplotlib): NAME.png, or a folder for "
+                         "skyrmion.png (default: skyrmion.png here)")
 parser.add_argument("--relax", action="store_true",
                     help="relax the texture first (zero-temperature damped precession)")
 args = parser.parse_args()
+out = args.out if args.out.suffix.lower() == ".png" else args.out / "skyrmion.png"
 
 a = 2.5  # Å
 n = args.size
@@ -120,5 +127,6 @@ else:
         ax.set_xlabel("x (Å)")
     axes[0].set_ylabel("y (Å)")
     fig.colorbar(im, ax=axes, label="$s_z$", shrink=0.8)
-    fig.savefig(args.out, dpi=110)
-    print(f"wrote {args.out}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    print(f"wrote {out}")

@@ -3,10 +3,16 @@ of spin–lattice dynamics, written as OVITO-ready extended XYZ and drawn twice 
 by OVITO's Python module (if installed; headless rendering needs a Vulkan
 driver, e.g. Debian's libvulkan1 + mesa-vulkan-drivers) and by matplotlib.
 
-    python examples/view_spins.py [output folder]   (default docs/figures/viewing)
+    python examples/view_spins.py [--out DIR] [--steps 200] [--no-xyz]
+
+writes, in DIR (default: the current folder), spiral.xyz (every 50th step, open it
+with OVITO or `ase gui spiral.xyz`), spiral_matplotlib.png and, with OVITO,
+spiral_ovito.png. The docs' pictures are made with
+`python examples/view_spins.py --out docs/figures/viewing --no-xyz`.
 """
 
-import sys
+import argparse
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +24,18 @@ import ase_spin
 from ase_spin import (BetheSlater, CollectivePRK, Exchange, LennardJones,
                       SpinLatticeCalculator, UniaxialAnisotropy)
 
-out = Path(sys.argv[1] if len(sys.argv) > 1 else "docs/figures/viewing")
+parser = argparse.ArgumentParser(
+    description="A spin spiral in fcc Co after 0.1 ps of spin–lattice dynamics, written as "
+    "OVITO-ready extended XYZ and drawn by OVITO (if installed) and matplotlib.")
+parser.add_argument("--out", default=".", type=Path,
+                    help="folder for the pictures and spiral.xyz (default: the current folder)")
+parser.add_argument("--steps", type=int, default=200, help="steps of 0.5 fs (default 200)")
+parser.add_argument("--no-xyz", action="store_true",
+                    help="do not keep spiral.xyz (it is large): only the pictures")
+args = parser.parse_args()
+if args.out.suffix.lower() == ".png":
+    parser.error("--out is a folder: this example writes two pictures and spiral.xyz")
+out = args.out
 out.mkdir(parents=True, exist_ok=True)
 
 atoms = bulk("Co", "fcc", a=3.54, cubic=True).repeat((8, 4, 2))  # 256 atoms
@@ -35,32 +52,38 @@ atoms.calc = SpinLatticeCalculator([
     Exchange(BetheSlater(J1=0.0446928, J2=0.003496, J3=1.4885), rc=4.0),
     UniaxialAnisotropy(K=0.001, axis=[0, 0, 1]),
 ])
-traj_path = out / "spiral.traj"
-traj_path.unlink(missing_ok=True)
-with Trajectory(traj_path, "w", atoms) as traj:
-    dyn = CollectivePRK(atoms, timestep=0.5 * units.fs, trajectory=traj, loginterval=50)
-    dyn.run(200, progress=True)
 
-xyz = out / "spiral.xyz"
-n = ase_spin.write_ovito_xyz(xyz, traj_path, color_by="z")   # every frame of the run
-print(f"wrote {xyz} ({n} frames)")
-traj_path.unlink()  # the pictures are what the docs keep
+with tempfile.TemporaryDirectory() as scratch:
+    # the run's trajectory is only a step towards the pictures: kept out of the way
+    traj_path = Path(scratch) / "spiral.traj"
+    with Trajectory(traj_path, "w", atoms) as traj:
+        dyn = CollectivePRK(atoms, timestep=0.5 * units.fs, trajectory=traj, loginterval=50)
+        dyn.run(args.steps, progress=True)
+    xyz = (Path(scratch) if args.no_xyz else out) / "spiral.xyz"
+    n = ase_spin.write_ovito_xyz(xyz, traj_path, color_by="z")  # every frame of the run
+    if not args.no_xyz:
+        print(f"wrote {xyz} ({n} frames)")
 
-ase_spin.plot_spins(atoms, out / "spiral_matplotlib.png", color_by="z")
-print(f"wrote {out / 'spiral_matplotlib.png'}")
+    ase_spin.plot_spins(atoms, out / "spiral_matplotlib.png", color_by="z")
+    print(f"wrote {out / 'spiral_matplotlib.png'}")
 
-try:
-    from ovito.vis import TachyonRenderer, Viewport
-except ImportError:
-    print("OVITO not installed (pip install ovito): no OVITO picture")
-else:
-    from ase_spin.io.viewing import ovito_pipeline
+    try:
+        from ovito.vis import TachyonRenderer, Viewport
+    except ImportError:
+        print("OVITO not installed (pip install ovito): no OVITO picture")
+    else:
+        from ase_spin.io.viewing import ovito_pipeline
 
-    pipeline = ovito_pipeline(xyz)
-    pipeline.add_to_scene()
-    vp = Viewport(type=Viewport.Type.Perspective, camera_dir=(-0.35, 1.0, -0.45))
-    vp.zoom_all()
-    vp.render_image(filename=str(out / "spiral_ovito.png"), size=(800, 500),
-                    frame=n - 1, renderer=TachyonRenderer())
-    print(f"wrote {out / 'spiral_ovito.png'}")
-xyz.unlink()  # large; the example writes it again
+        pipeline = ovito_pipeline(xyz)
+        pipeline.add_to_scene()
+        vp = Viewport(type=Viewport.Type.Perspective, camera_dir=(-0.35, 1.0, -0.45))
+        vp.zoom_all()
+        try:
+            vp.render_image(filename=str(out / "spiral_ovito.png"), size=(800, 500),
+                            frame=n - 1, renderer=TachyonRenderer())
+        except RuntimeError as err:  # e.g. no Vulkan driver
+            print(f"OVITO cannot render here: {err}")
+        else:
+            print(f"wrote {out / 'spiral_ovito.png'}")
+        finally:
+            pipeline.remove_from_scene()

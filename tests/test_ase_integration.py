@@ -406,13 +406,17 @@ def test_timestep_warnings_name_the_value_in_fs():
     from ase_spin.md.errors import TimestepWarning
 
     # 0.1 meant as fs is 1.02 fs: too long for iron's precession (period ~5 fs)
-    with pytest.warns(TimestepWarning, match=r"timestep 1.018 fs .*spin precesses"):
+    # the hint about ASE time units only where the number looks meant in fs
+    with pytest.warns(TimestepWarning, match=r"timestep 1.018 fs: .*spin precesses.*"
+                      r"for 0.1 fs write timestep=0.1 \* ase.units.fs") as caught:
         CollectivePRK(_iron(), 0.1).run(1)
-    with pytest.warns(TimestepWarning, match=r"fastest vibration"):
+    assert caught[0].message.timestep_fs == pytest.approx(0.1 / units.fs)
+    with pytest.warns(TimestepWarning, match=r"fastest vibration") as caught:
         a = _nickel()
         a.calc = SpinLatticeCalculator([EMT()])
         CollectivePRK(a, 20 * units.fs).run(1)
-    with pytest.warns(TimestepWarning, match=r"below 0.001 fs"):
+    assert "ASE time units" not in str(caught[0].message)
+    with pytest.warns(TimestepWarning, match=r"below 0.001 fs.*ASE time units"):
         SuzukiTrotter(_iron(), 1e-15).run(1)
     with warnings.catch_warnings():
         warnings.simplefilter("error")

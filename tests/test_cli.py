@@ -209,17 +209,40 @@ def test_a_term_exported_by_the_package_is_usable_by_name(tmp_path, monkeypatch)
 
 
 @pytest.mark.parametrize("change, message", [
-    (('type = "Zeeman"', 'type = "Zeman"'), "unknown type 'Zeman'; choose one of"),
-    (("field = [0, 0, 20]", "field = [0, 0, 20]\nstrength = 3"), "#3 (Zeeman)"),
+    (('type = "Zeeman"', 'type = "Zeman"'),
+     "unknown type 'Zeman' (did you mean 'Zeeman'?); choose one of"),
+    (("field = [0, 0, 20]", "field = [0, 0, 20]\nstrength = 3"),
+     "unknown key 'strength' in [[terms]] #3 (Zeeman)"),
     (("cutoff = \"shift\"", "cutoff = \"sharp\""), "#1 (LennardJones)"),
-    (("[calculator]", "[calculater]"), "unknown table(s) calculater"),
+    (("[calculator]", "[calculater]"),
+     "unknown table [calculater] in "),
+    (("[calculator]", "[calculater]"), "(did you mean [calculator]?)"),
     (("steps = 12", "steps = 12.5"), "steps must be an integer"),
-    (("timestep = 0.5", "timestep = -0.5"), "timestep = ... (fs, > 0)"),
+    (("timestep = 0.5", "timestep = -0.5"), "[integrator] timestep = -0.5 (fs) must be > 0"),
+    (("timestep = 0.5\n", ""), "[integrator] needs 'timestep' (fs)"),
+    (("timestep = 0.5", "time_step = 0.5"),
+     "unknown key 'time_step' in [integrator] (CollectivePRK) (did you mean 'timestep'?)"),
     (("type = \"CollectivePRK\"", "type = \"LennardJones\""), "unknown type 'LennardJones'"),
     (("[spins]\nmagnitude = 1.72", "[spins]\nmagnitude = {Fe = 2.2}"),
      "no value for Co"),
-    (("repeat = [2, 2, 2]", "repeat = [2, 2, 2]\ncolour = 1"), "[structure] has unknown"),
-    (("a = 3.54, cubic", "a = 3.54, cubix"), "build = bulk(...)"),
+    (("repeat = [2, 2, 2]", "repeat = [2, 2, 2]\nrattel = 1"),
+     "unknown key 'rattel' in [structure] (did you mean 'rattle'?)"),
+    (("repeat = [2, 2, 2]", "repeat = [2, 2, 2]\ncolour = 1"),
+     "unknown key 'colour' in [structure] (its keys: file, index,"),
+    (("a = 3.54, cubic", "a = 3.54, cubix"),
+     "unknown key 'cubix' in [structure] build = bulk(...) (did you mean 'cubic'?)"),
+    (("J3 = 1.4885}", "J4 = 1.4885}"),
+     "unknown key 'J4' in [[terms]] #2.coupling (BetheSlater) (its keys: J1, J2, J3)"),
+    ((", J3 = 1.4885}", "}"), "[[terms]] #2.coupling (BetheSlater) needs 'J3'"),
+    (("epsilon = 0.4\n", ""), "[[terms]] #1 (LennardJones) needs 'epsilon'"),
+    (("temperature = 100", "temperatur = 100"),
+     "unknown key 'temperatur' in [velocities] (did you mean 'temperature'?)"),
+    (("temperature = 100\n", ""), "[velocities] needs 'temperature' (K)"),
+    (("steps = 12", "steps = 12\ncomm = 1"), "unknown key 'comm' in [integrator]"),
+    (("steps = 12", "steps = 12\nspin_damping = 0.1"),
+     "unknown key 'spin_damping' in [integrator] (CollectivePRK)"),
+    (("interval = 4", "intervall = 4"),
+     "unknown key 'intervall' in [output] (did you mean 'interval'?)"),
 ])
 def test_bad_input_is_refused_with_a_message_naming_it(tmp_path, capsys, change, message):
     text = SCENE.format(integrator="CollectivePRK", timestep=0.5, steps=12, interval=4,
@@ -227,9 +250,15 @@ def test_bad_input_is_refused_with_a_message_naming_it(tmp_path, capsys, change,
     assert change[0] in text
     path = write_input(tmp_path, text=text.replace(change[0], change[1], 1))
     assert run_cli("run", path, "--no-progress") == 2
-    err = capsys.readouterr().err
+    err = _without_compile_notice(capsys.readouterr().err)
     assert err.startswith("ase-spin: error:") and message in err, err
-    assert not (tmp_path / "md.traj").exists() and not (tmp_path / "md.log").exists()
+    assert len(err.splitlines()) == 1, err  # one line, no traceback
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.toml"]
+
+
+def _without_compile_notice(err):
+    return "".join(line for line in err.splitlines(keepends=True)
+                   if not line.startswith("ase_spin: compiling"))
 
 
 def test_spin_terms_without_moments_are_refused(tmp_path, capsys):
@@ -414,10 +443,184 @@ def test_collinear_moments_from_a_file_need_a_direction(tmp_path, capsys, monkey
 
 
 def test_an_unstable_run_stops_with_a_message(tmp_path, capsys):
+    """A run that stops at its first step leaves no file (they hold nothing but
+    the input's state), so the corrected input runs without --overwrite; the
+    timestep warning speaks of the input file's key, in fs."""
     path = write_input(tmp_path, timestep=40.0, steps=50, interval=10)
     assert run_cli("run", path, "--no-progress") == 1
+    err = _without_compile_notice(capsys.readouterr().err)
+    warning, stopped = err.splitlines()
+    assert warning.startswith("ase-spin: warning: timestep = 40 (fs) in [integrator]: ")
+    assert "keep h·ω below 0.3 rad" in warning and "ase.units" not in warning
+    assert stopped.startswith("ase-spin: the run stopped:") and "fs" in stopped
+    assert "no step was completed: removed md.traj, md.log, spins.xyz" in stopped
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.toml"]
+    write_input(tmp_path, timestep=0.5, steps=2, interval=1)
+    assert run_cli("run", path, "--no-progress") == 0
+    assert "warning" not in capsys.readouterr().err
+    assert len(read(tmp_path / "md.traj", ":")) == 3
+
+
+LANGEVIN = 'temperature_K = 300\nspin_damping = 0.1\nfriction = {friction}\nrng = 7'
+
+
+def test_friction_is_in_inverse_fs_like_the_timestep(tmp_path, capsys):
+    """[integrator] friction is in 1/fs, as the timestep is in fs: the file's
+    friction = 0.05 is the Python API's friction=0.05 / units.fs (the same run,
+    bit for bit); a relaxation time 1/friction longer than the run is warned
+    about, naming the key and its unit."""
+    path = write_input(tmp_path, integrator="Langevin", steps=8, interval=4,
+                       extra=LANGEVIN.format(friction=0.05))
+    assert run_cli("run", path, "--no-progress") == 0
     err = capsys.readouterr().err
-    assert err.startswith("ase-spin: the run stopped:") and "fs" in err
+    assert ("ase-spin: warning: friction = 0.05 (1/fs) in [integrator]: the lattice relaxes "
+            "towards the bath temperature over 1/friction = 20 fs, longer than the whole run "
+            "(8 steps x 0.5 fs = 4 fs)") in err
+    frames = read(tmp_path / "md.traj", ":")
+    atoms = frames[0].copy()
+    atoms.set_momenta(frames[0].get_momenta())
+    atoms.calc = ase_spin.SpinLatticeCalculator([
+        ase_spin.LennardJones(epsilon=0.4, sigma=2.2742, rc=4.7, cutoff="shift"),
+        ase_spin.Exchange(ase_spin.BetheSlater(J1=0.0446928, J2=0.003496, J3=1.4885), rc=4.0),
+        ase_spin.Zeeman([0, 0, 20])], skin=0.4)
+    # the same outputs at the same steps (the baths' halves merge between outputs)
+    dyn = ase_spin.Langevin(atoms, 0.5 * units.fs, 300, spin_damping=0.1,
+                            friction=0.05 / units.fs, rng=7, trajectory=tmp_path / "py.traj",
+                            logfile=tmp_path / "py.log", loginterval=4)
+    dyn.attach(lambda: None, interval=4)  # the xyz frames
+    dyn.run(8)
+    assert dyn.fr == pytest.approx(0.05 / units.fs, rel=1e-15)
+    np.testing.assert_array_equal(atoms.positions, frames[-1].positions)
+    np.testing.assert_array_equal(atoms.arrays["initial_magmoms"],
+                                  frames[-1].arrays["initial_magmoms"])
+    assert (tmp_path / "py.log").read_text() == (tmp_path / "md.log").read_text()
+
+
+def test_implausible_friction_is_warned_about_in_the_files_units():
+    from ase_spin.app.inputs import InputWarning, warn_implausible
+
+    spec = {"integrator": {"type": "Langevin", "timestep": 0.5, "friction": 0.002}}
+    with pytest.warns(InputWarning, match=r"friction = 0.002 \(1/fs\) in \[integrator\]: "
+                      r"the lattice relaxes .* over 1/friction = 500 fs, longer than the whole "
+                      r"run \(400 steps x 0.5 fs = 200 fs\)"):
+        warn_implausible(spec, 400)
+    spec["integrator"]["friction"] = 5
+    with pytest.warns(InputWarning, match=r"friction = 5 \(1/fs\) in \[integrator\]: "
+                      r"1/friction = 0.2 fs is shorter than a step \(0.5 fs\)"):
+        warn_implausible(spec, 400)
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        spec["integrator"]["friction"] = 0.01  # 100 fs, in a 200 fs run
+        warn_implausible(spec, 400)
+        spec["integrator"]["friction"] = 0  # no lattice bath
+        warn_implausible(spec, 400)
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ("spin_damping = 0.1", "spin_dampng = 0.1",
+     "unknown key 'spin_dampng' in [integrator] (Langevin) (did you mean 'spin_damping'?)"),
+    ("spin_damping = 0.1\n", "", "[integrator] (Langevin) needs 'spin_damping'"),
+    ("friction = 0.01\n", "", "[integrator] (Langevin) needs 'friction' (1/fs)"),
+    ("friction = 0.01", "friction = -0.01", "[integrator] friction = -0.01 (1/fs) must be >= 0"),
+    ("temperature_K = 300\n", "", "[integrator] (Langevin) needs 'temperature_K'"),
+])
+def test_integrator_keys_are_checked_before_it_is_built(tmp_path, capsys, old, new, message):
+    """A typo or a missing key of [integrator] is reported as the table's key
+    (with the nearest known one), not as a Python signature error."""
+    text = SCENE.format(integrator="Langevin", timestep=0.5, steps=4, interval=2,
+                        extra=LANGEVIN.format(friction=0.01))
+    assert old in text
+    path = write_input(tmp_path, text=text.replace(old, new, 1))
+    assert run_cli("run", path, "--no-progress") == 2
+    err = _without_compile_notice(capsys.readouterr().err)
+    assert err == f"ase-spin: error: {message}\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.toml"]
+
+
+EAM_SCENE = """
+[structure]
+build = {function = "bulk", name = "Cu", crystalstructure = "fcc", a = 3.61, cubic = true}
+repeat = [2, 2, 2]
+rattle = 0.02
+
+[velocities]
+temperature = 100
+
+[[terms]]
+type = "EAM"
+potential = "FeCo.eam.alloy"
+elements = {Cu = "Mn"}
+
+[integrator]
+timestep = 1
+steps = 2
+
+[output]
+interval = 1
+"""
+
+
+def test_a_wrong_eam_element_map_is_refused_before_any_file(tmp_path, capsys):
+    """An EAM element map to an element the file lacks: one line naming the
+    [[terms]] table, exit status 2, no file written; the corrected input then
+    runs without --overwrite."""
+    from test_eam import _write_setfl
+
+    _write_setfl(tmp_path / "FeCo.eam.alloy")
+    path = tmp_path / "eam.toml"
+    path.write_text(EAM_SCENE)
+    assert run_cli("run", path, "--no-progress") == 2
+    err = _without_compile_notice(capsys.readouterr().err)
+    assert err == ("ase-spin: error: [[terms]] #1 (EAM): EAM: the potential FeCo.eam.alloy "
+                   "has no element Mn (for the atoms' Cu): it has Fe, Co\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["FeCo.eam.alloy", "eam.toml"]
+    path.write_text(EAM_SCENE.replace('Cu = "Mn"', 'Cu = "Co"'))
+    assert run_cli("run", path, "--no-progress") == 0
+    assert len(read(tmp_path / "eam.traj", ":")) == 3
+    # an OVITO file of spins, for atoms without any: refused before any file too
+    path.write_text(EAM_SCENE.replace('Cu = "Mn"', 'Cu = "Co"').replace(
+        "[output]", '[output]\ntrajectory = "b.traj"\nlog = "b.log"\nxyz = "b.xyz"'))
+    capsys.readouterr()
+    assert run_cli("run", path, "--no-progress") == 2
+    err = _without_compile_notice(capsys.readouterr().err)
+    assert err.startswith("ase-spin: error: [output] xyz: the atoms carry no (N, 3) "
+                          "initial_magmoms")
+    assert not list(tmp_path.glob("b.*"))
+
+
+def test_a_failure_at_step_zero_leaves_no_file(tmp_path, capsys, monkeypatch):
+    """Step 0 is evaluated before any file is created: a problem there (here a
+    skin of 0, which one pair list for q and q̃ cannot have) is an input error
+    with nothing written. And a failure after the files were created, before
+    the first step is done (here writing the first xyz frame), removes them."""
+    text = SCENE.format(integrator="CollectivePRK", timestep=0.5, steps=4, interval=2,
+                        extra="").replace("skin = 0.4", "skin = 0")
+    path = write_input(tmp_path, text=text)
+    assert run_cli("run", path, "--no-progress") == 2
+    err = _without_compile_notice(capsys.readouterr().err)
+    assert err.startswith("ase-spin: error: step 0 (CollectivePRK): ") and "skin" in err
+    assert len(err.splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.toml"]
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("disk full")
+
+    write_input(tmp_path, steps=4, interval=2)
+    monkeypatch.setattr(cli, "write_ovito_xyz", broken)
+    with pytest.raises(RuntimeError, match="disk full"):  # not the input's: a traceback
+        run_cli("run", path, "--no-progress")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.toml"]
+    monkeypatch.undo()
+    assert run_cli("run", path, "--no-progress") == 0
+    assert len(read(tmp_path / "md.traj", ":")) == 3
+
+
+def test_debug_shows_the_traceback(tmp_path, capsys):
+    path = write_input(tmp_path, extra="ordr = 2")
+    assert run_cli("run", path, "--no-progress", "--debug") == 2
+    err = capsys.readouterr().err
+    assert "Traceback" in err and err.rstrip().endswith("(did you mean 'order'?)")
 
 
 def test_compile_command_runs_each_scene_and_writes_nothing(tmp_path, capsys):
@@ -450,3 +653,28 @@ def test_compile_command_fills_an_empty_cache_for_later_runs(tmp_path):
                          timeout=1200)
     assert run.returncode == 0, run.stderr
     assert "compiling numba kernels" not in run.stderr, run.stderr
+
+
+def test_conventions_in_the_calculator_table(tmp_path, capsys):
+    """[calculator] conventions = "lammps" runs the scene under LAMMPS's
+    conventions, as the script's SpinLatticeCalculator(..., conventions=...);
+    an unknown name is refused naming the table."""
+    text = SCENE.format(integrator="CollectivePRK", timestep=0.5, steps=8, interval=4,
+                        extra="").replace("skin = 0.4", 'skin = 0.4\nconventions = "lammps"')
+    assert 'conventions = "lammps"' in text
+    path = write_input(tmp_path, text=text)
+    assert run_cli("run", path, "--no-progress") == 0
+    frames = read(tmp_path / "md.traj", ":")
+    assert frames[-1].calc.parameters["conventions"] == "lammps"
+    atoms = frames[0].copy()
+    atoms.set_momenta(frames[0].get_momenta())
+    atoms.calc = ase_spin.SpinLatticeCalculator.from_dict(frames[0].calc.parameters)
+    assert atoms.calc.hamiltonian.conventions.name == "lammps"
+    ase_spin.CollectivePRK(atoms, 0.5 * units.fs).run(8)
+    np.testing.assert_array_equal(atoms.arrays["initial_magmoms"],
+                                  frames[-1].arrays["initial_magmoms"])
+    (tmp_path / "bad").mkdir()
+    path = write_input(tmp_path / "bad", text=text.replace('"lammps"', '"LAMMPS"'))
+    assert run_cli("run", path, "--no-progress") == 2
+    err = capsys.readouterr().err
+    assert "[calculator]" in err and "conventions" in err

@@ -221,3 +221,91 @@ def test_ovito_pipeline_needs_ovito(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "ovito.io", None)
     with pytest.raises(ImportError, match="pip install ovito"):
         viewing.ovito_pipeline(tmp_path / "x.xyz")
+
+
+def _film(n=6, a=2.5, rattle=0.0, normal_axis=2):
+    """A square monolayer, periodic in-plane, spins mostly along +normal with a
+    ring tilted into the plane and the middle reversed."""
+    from ase import Atoms
+
+    ij = np.array([(i, j) for j in range(n) for i in range(n)], dtype=float) * a
+    pos = np.column_stack([ij, np.zeros(n * n)])
+    cell = np.diag([n * a, n * a, 10.0])
+    pbc = [True, True, False]
+    perm = {2: [0, 1, 2], 0: [2, 0, 1]}[normal_axis]  # the normal along z or along x
+    atoms = Atoms(f"Fe{n * n}", positions=pos[:, perm], cell=cell[perm][:, perm],
+                  pbc=[pbc[k] for k in perm])
+    atoms.rattle(rattle, seed=1)
+    d = ij - ij.mean(axis=0)
+    rho = np.linalg.norm(d, axis=1)
+    theta = np.pi * np.clip(1.0 - rho / (0.6 * n * a), 0.0, 1.0)
+    radial = d / np.where(rho > 0, rho, 1.0)[:, None]
+    s = np.column_stack([np.sin(theta)[:, None] * radial, np.cos(theta)])
+    ase_spin.set_spins(atoms, s[:, perm], magnitudes=2.0)
+    return atoms
+
+
+def test_film_plane_finds_the_normal_of_flat_systems():
+    atoms = _film(rattle=0.1)
+    n, e1, e2, flat = viewing.film_plane(atoms)
+    np.testing.assert_allclose(n, [0, 0, 1])
+    np.testing.assert_allclose(e1, [1, 0, 0])
+    np.testing.assert_allclose(e2, [0, 1, 0])
+    assert flat
+    side = _film(normal_axis=0)  # a film in the yz plane, non-periodic along x
+    n, e1, e2, flat = viewing.film_plane(side)
+    np.testing.assert_allclose(n, [1, 0, 0])
+    np.testing.assert_allclose(np.cross(e1, e2), n)
+    assert flat
+    assert not viewing.film_plane(scene(3))[3]  # bulk
+    slab = bulk("Fe", "bcc", a=2.87, cubic=True).repeat((8, 8, 3))
+    slab.pbc = [True, True, False]
+    assert not viewing.film_plane(slab)[3]  # 5.7 Å thick, 20 Å wide: not a film
+    two = bulk("Fe", "bcc", a=2.87, cubic=True).repeat((10, 10, 1))
+    two.pbc = [True, True, False]
+    assert viewing.film_plane(two)[3]  # two layers 1.4 Å apart
+
+
+def test_matplotlib_picture_of_a_film_is_a_top_view(tmp_path):
+    """A film is drawn from above: a 2D quiver of the in-plane spins coloured
+    by s_z, equal aspect, in Å; view="3d" still gives the 3D picture."""
+    pytest.importorskip("matplotlib")
+    from matplotlib.image import imread
+    from matplotlib.quiver import Quiver
+
+    atoms = _film(rattle=0.05)
+    atoms.arrays["initial_magmoms"][0] = 0.0  # a non-magnetic corner atom
+    fig = ase_spin.plot_spins(atoms, tmp_path / "film.png")
+    ax = fig.axes[0]
+    assert ax.name == "rectilinear" and ax.get_aspect() == 1.0
+    assert ax.get_xlabel() == "x (Å)" and ax.get_ylabel() == "y (Å)"
+    (quiver,) = [c for c in ax.collections if isinstance(c, Quiver)]
+    spins = ase_spin.get_spins(atoms)[1:]
+    assert quiver.N == len(atoms) - 1
+    np.testing.assert_allclose(quiver.get_array(), spins[:, 2])  # coloured by s_z
+    np.testing.assert_allclose(np.column_stack([quiver.U, quiver.V]) / np.hypot(
+        quiver.U, quiver.V).max(), spins[:, :2] / np.hypot(*spins[:, :2].T).max(), atol=1e-12)
+    assert "s_z" in fig.axes[1].get_ylabel()  # the colour bar
+    image = imread(tmp_path / "film.png")[..., :3]
+    red = (image[..., 0] > 0.55) & (image[..., 1] < 0.25) & (image[..., 2] < 0.3)
+    blue = (image[..., 2] > 0.55) & (image[..., 0] < 0.35)
+    assert red.sum() > 50 and blue.sum() > 20  # s_z = +1 at the rim, −1 in the middle
+    fig = ase_spin.plot_spins(atoms, view="3d")
+    assert fig.axes[0].name == "3d"
+    fig = ase_spin.plot_spins(scene(2), view="top", color_by="x")
+    assert fig.axes[0].name == "rectilinear"
+    with pytest.raises(ValueError, match="view"):
+        ase_spin.plot_spins(atoms, view="side")
+    with pytest.raises(ValueError, match="needs a 2D axes"):
+        ase_spin.plot_spins(atoms, view="top", ax=fig.add_subplot(projection="3d"))
+
+
+def test_ase_gui_tilted_view_shows_moments_along_a_film_normal():
+    """docs/viewing.md: from ase gui's default view (down z) a moment along z
+    projects to nothing; `ase gui -R -70x` shows it at 94 % of its length."""
+    pytest.importorskip("ase.gui")
+    from ase.utils import rotate
+
+    up = np.array([0.0, 0.0, 1.0])
+    assert np.linalg.norm((up @ rotate(""))[:2]) == 0.0
+    assert np.linalg.norm((up @ rotate("-70x"))[:2]) > 0.93

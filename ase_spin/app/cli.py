@@ -1,6 +1,6 @@
 """The ``ase-spin`` command: run a scene from an input file, plot its log.
 
-    ase-spin run INPUT.toml [--steps N] [--overwrite] [--no-progress]
+    ase-spin run INPUT.toml [--steps N] [--overwrite] [--no-progress] [--debug]
     ase-spin plot LOG [-o PNG]
     ase-spin compile [INPUT.toml ...] [--jobs N]
 
@@ -17,11 +17,15 @@ example)::
     [[terms]]       type = "LennardJones", epsilon = 0.4, ... (one table per term)
     [calculator]    skin = 0.3 (Å)
     [integrator]    type = "CollectivePRK", timestep = 0.1 (fs), steps = 1000,
-                    order = 2, ... (any other keyword of the integrator)
+                    order = 2, ... (any other keyword of the integrator;
+                    Langevin's friction in 1/fs: times are in fs throughout)
     [output]        trajectory = "md.traj", log = "md.log", xyz = "spins.xyz",
                     interval = 10, overwrite = false
 
-How the tables become objects: :mod:`ase_spin.app.inputs`.
+How the tables become objects: :mod:`ase_spin.app.inputs`. A run is built
+and checked whole (step 0 evaluated) before any file is written; a mistake
+in the input is one line on stderr and exit status 2 (``--debug``: with the
+traceback).
 """
 
 from __future__ import annotations
@@ -30,14 +34,18 @@ import argparse
 import os
 import sys
 import time
+import traceback
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from ..io.viewing import write_ovito_xyz
+from ..io.viewing import ovito_frame, write_ovito_xyz
 from ..md import IntegrationError
-from .inputs import (InputError, build_integrator, build_scene, in_folder, load_input,
-                     refuse_unknown, take)
+from ..md.errors import TimestepWarning
+from .inputs import (TABLE_KEYS, InputError, InputWarning, build_integrator, build_scene,
+                     in_folder, in_input_words, load_input, refuse_unknown, take,
+                     warn_implausible)
 from .warmup import compile_kernels
 
 __all__ = ["main", "load_input", "build_scene", "plot_log", "InputError"]
@@ -45,7 +53,11 @@ __all__ = ["main", "load_input", "build_scene", "plot_log", "InputError"]
 # -- run ---------------------------------------------------------------------------
 
 def _outputs(spec, stem, steps, overwrite):
+    """The output paths, interval and the existing files to replace, from the
+    [output] table: existing files refused unless ``overwrite``. Touches no
+    file."""
     t = dict(spec.get("output", {}))
+    refuse_unknown(t, "output", TABLE_KEYS["output"])
     paths = {}
     for key, default in (("trajectory", f"{stem}.traj"), ("log", f"{stem}.log"),
                          ("xyz", False)):
@@ -57,50 +69,94 @@ def _outputs(spec, stem, steps, overwrite):
     if interval < 1:
         raise InputError(f"[output] interval must be >= 1, got {interval}")
     overwrite = take(t, "output", "overwrite", False, bool) or overwrite
-    refuse_unknown(t, "output")
     existing = [p for p in paths.values() if p and Path(p).exists()]
     if existing and not overwrite:
         raise InputError(f"output file(s) {', '.join(existing)} exist: remove them, name "
                          "others in [output], or run with --overwrite")
-    for p in existing:
-        os.remove(p)
-    return paths, interval
+    return paths, interval, existing
+
+
+def _step_zero(dyn):
+    """Everything step 0 computes, with nothing written: the integrator's set-up
+    (state, timestep check, spin operators), the energies of the log line and
+    the results of the first frame (forces, stress, magnetic forces). A
+    ValueError or TypeError here comes from the input (a term's parameters,
+    atoms too close, a skin of 0 ...): an InputError."""
+    try:
+        dyn.get_potential_energy()
+        dyn.publish_results()
+    except (ValueError, TypeError) as err:
+        raise InputError(f"step 0 ({type(dyn).__name__}): {err}") from None
 
 
 def run(input_path, steps=None, overwrite=False, progress=True, out=None):
     """``ase-spin run``: build the scene of ``input_path``, integrate, write the
-    outputs. Returns the integrator (closed)."""
+    outputs. Returns the integrator (closed).
+
+    Nothing is written before the whole run is built and step 0 evaluated
+    (scene, terms bound to the structure, integrator, energies and forces); if
+    the run then fails before its first step is done, the files it created
+    are removed, so that the corrected input runs without ``--overwrite``."""
     out = out or sys.stdout
     input_path = Path(input_path).resolve()
     spec = load_input(input_path)
     with in_folder(input_path.parent):
-        atoms = build_scene(spec)
         nsteps = spec.get("integrator", {}).get("steps", 0) if steps is None else steps
         nsteps = nsteps if isinstance(nsteps, int) and not isinstance(nsteps, bool) else 0
-        # the integrator's keywords checked before any output file is touched
-        build_integrator(atoms, spec, dict.fromkeys(("trajectory", "log")), 1, steps)
-        paths, interval = _outputs(spec, input_path.stem, nsteps, overwrite)
-        dyn, nsteps = build_integrator(atoms, spec, paths, interval, steps)
+        paths, interval, existing = _outputs(spec, input_path.stem, nsteps, overwrite)
+        atoms = build_scene(spec)
+        probe, nsteps = build_integrator(atoms, spec, dict.fromkeys(("trajectory", "log")),
+                                         interval, steps)
+        _step_zero(probe)
         if paths["xyz"]:
-            xyz = paths["xyz"]
-            dyn.attach(lambda: write_ovito_xyz(xyz, atoms, append=True), interval=interval)
-        terms = ", ".join(type(t).__name__ for t in atoms.calc.hamiltonian.terms)
-        written = ", ".join(f"{k} {v}" for k, v in paths.items() if v) or "nothing"
-        print(f"{len(atoms)} atoms ({atoms.get_chemical_formula()}), terms: {terms}\n"
-              f"{type(dyn).__name__}, {dyn.dt / _fs():.4g} fs x {nsteps} steps "
-              f"({nsteps * dyn.dt / _fs() / 1000:.4g} ps); writing {written} every "
-              f"{interval} steps", file=out, flush=True)
-        t0 = time.perf_counter()
+            try:
+                ovito_frame(atoms)  # what the first xyz frame needs (spins), not written
+            except ValueError as err:
+                raise InputError(f"[output] xyz: {err}") from None
+        warn_implausible(spec, nsteps)
+        del probe  # its state: as large as the run's
+        # all checked: from here on files are written
+        for p in existing:
+            os.remove(p)
+        dyn = None
         try:
-            dyn.run(nsteps, progress=progress)
-        finally:
-            dyn.close()
+            with warnings.catch_warnings():
+                # the probe's step 0 was this one: its warnings were shown
+                warnings.simplefilter("ignore", TimestepWarning)
+                dyn, nsteps = build_integrator(atoms, spec, paths, interval, steps)
+                if paths["xyz"]:
+                    xyz = paths["xyz"]
+                    dyn.attach(lambda: write_ovito_xyz(xyz, atoms, append=True),
+                               interval=interval)
+                terms = ", ".join(type(t).__name__ for t in atoms.calc.hamiltonian.terms)
+                written = ", ".join(f"{k} {v}" for k, v in paths.items() if v) or "nothing"
+                print(f"{len(atoms)} atoms ({atoms.get_chemical_formula()}), terms: {terms}\n"
+                      f"{type(dyn).__name__}, {dyn.dt / _fs():.4g} fs x {nsteps} steps "
+                      f"({nsteps * dyn.dt / _fs() / 1000:.4g} ps); writing {written} every "
+                      f"{interval} steps", file=out, flush=True)
+                t0 = time.perf_counter()
+                try:
+                    dyn.run(nsteps, progress=progress)
+                finally:
+                    dyn.close()
+        except BaseException as err:
+            if dyn is None or dyn.nsteps == 0:
+                # no step done: nothing but the input's state in them
+                err.removed_outputs = _remove(paths)
+            raise
         elapsed = time.perf_counter() - t0
         rate = nsteps / elapsed if elapsed > 0 else float("inf")
         print(f"done: {nsteps} steps in {elapsed:.1f} s ({rate:.3g} steps/s, "
               f"{1e6 * elapsed / max(nsteps * len(atoms), 1):.3g} µs per atom-step)",
               file=out, flush=True)
     return dyn
+
+
+def _remove(paths):
+    removed = [p for p in paths.values() if p and Path(p).exists()]
+    for p in removed:
+        os.remove(p)
+    return removed
 
 
 def _fs():
@@ -182,17 +238,22 @@ def plot_log(path, output=None):
 def _parser():
     parser = argparse.ArgumentParser(
         prog="ase-spin", description="Spin-lattice dynamics with ase_spin.")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--debug", action="store_true",
+                        help="on an error, show Python's traceback instead of one line")
     sub = parser.add_subparsers(dest="command", required=True)
-    r = sub.add_parser("run", help="run the scene of a TOML input file")
+    r = sub.add_parser("run", parents=[common], help="run the scene of a TOML input file")
     r.add_argument("input", help="input file (TOML; see docs/command_line.md)")
     r.add_argument("--steps", type=int, help="number of steps (overrides the input)")
     r.add_argument("--overwrite", action="store_true",
                    help="replace existing output files")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p = sub.add_parser("plot", help="plot energies, temperatures and |M| of a log")
+    p = sub.add_parser("plot", parents=[common],
+                       help="plot energies, temperatures and |M| of a log")
     p.add_argument("log", help="log file written by an ase_spin integrator")
     p.add_argument("-o", "--output", help="PNG to write (default: LOG with .png)")
-    c = sub.add_parser("compile", help="compile the numba kernels ahead of time (into "
+    c = sub.add_parser("compile", parents=[common],
+                       help="compile the numba kernels ahead of time (into "
                        "numba's disk cache) for the scenes of input files, or a built-in set")
     c.add_argument("inputs", nargs="*", help="input files (TOML) whose scenes to compile for")
     c.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
@@ -200,32 +261,64 @@ def _parser():
     return parser
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Warnings about the input (the timestep, values of the file) as one line
+    in the input file's terms; others as Python shows them."""
+    if issubclass(category, (InputWarning, TimestepWarning)):
+        print(f"ase-spin: warning: {in_input_words(message)}", file=sys.stderr, flush=True)
+    else:
+        _python_show_warning(message, category, filename, lineno, file, line)
+
+
+_python_show_warning = warnings.showwarning
+
+
 def main(argv=None):
-    """The ``ase-spin`` console script. Returns the exit status: 0, or 2 for a
-    problem with the input (the message on stderr)."""
+    """The ``ase-spin`` console script. Returns the exit status: 0; 2 for a
+    problem with the input (one line on stderr naming the table and key; with
+    ``--debug``, Python's traceback); 1 when the run stopped (an integration
+    error); 130 when interrupted."""
     args = _parser().parse_args(argv)
-    try:
-        if args.command == "run":
-            run(args.input, steps=args.steps, overwrite=args.overwrite,
-                progress=not args.no_progress)
-        elif args.command == "compile":
-            if args.jobs < 1:
-                raise InputError(f"--jobs must be at least 1, got {args.jobs}")
-            os.environ.setdefault("ASE_SPIN_QUIET_COMPILE", "1")  # it says what it does
-            compile_kernels(args.inputs, jobs=args.jobs)
-        else:
-            png = plot_log(args.log, args.output)
-            print(f"wrote {png}")
-    except (InputError, FileExistsError) as err:
-        print(f"ase-spin: error: {err}", file=sys.stderr)
-        return 2
-    except IntegrationError as err:
-        print(f"ase-spin: the run stopped: {err}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("ase-spin: interrupted; the outputs hold the steps completed", file=sys.stderr)
-        return 130
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        try:
+            if args.command == "run":
+                run(args.input, steps=args.steps, overwrite=args.overwrite,
+                    progress=not args.no_progress)
+            elif args.command == "compile":
+                if args.jobs < 1:
+                    raise InputError(f"--jobs must be at least 1, got {args.jobs}")
+                os.environ.setdefault("ASE_SPIN_QUIET_COMPILE", "1")  # it says what it does
+                compile_kernels(args.inputs, jobs=args.jobs)
+            else:
+                png = plot_log(args.log, args.output)
+                print(f"wrote {png}")
+        except (InputError, FileExistsError) as err:
+            if args.debug:
+                traceback.print_exc()
+            print(f"ase-spin: error: {err}", file=sys.stderr)
+            return 2
+        except IntegrationError as err:
+            if args.debug:
+                traceback.print_exc()
+            print(f"ase-spin: the run stopped: {err}{_kept(err, args)}", file=sys.stderr)
+            return 1
+        except KeyboardInterrupt as err:
+            print(f"ase-spin: interrupted{_kept(err, args)}", file=sys.stderr)
+            return 130
     return 0
+
+
+def _kept(err, args):
+    """What became of the outputs of a run that stopped."""
+    if args.command != "run":
+        return ""
+    removed = getattr(err, "removed_outputs", None)
+    if removed is None:
+        return "; the outputs hold the steps completed"
+    if removed:
+        return f"; no step was completed: removed {', '.join(removed)}"
+    return ""
 
 
 if __name__ == "__main__":

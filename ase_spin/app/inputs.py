@@ -1,19 +1,27 @@
-"""The input file of ``ase-spin run`` (TOML): reading it and building the scene
-and the integrator it describes (docs/command_line.md).
+"""The input file of ``ase-spin run`` (TOML): reading it, checking it, and
+building the scene and the integrator it describes (docs/command_line.md).
 
 Terms, couplings and integrators are looked up by name among the classes
 ``ase_spin`` exports: a term added to the package (and exported) is usable
 here with no change to this file. A table with a ``type`` key anywhere inside
 a term's parameters builds that object (``coupling = {type = "BetheSlater",
-J1 = ...}``); every other key is a keyword argument, in the class's own units —
-only the integrator's ``timestep`` is given in fs here.
+J1 = ...}``); every other key is a keyword argument, checked against the
+class's signature (unknown keys, with the nearest known one; keys without a
+default) before the class is called.
+
+Units: every quantity is in the unit docs/command_line.md's table gives it;
+times are in fs. The keys whose unit differs from the Python API's (ASE time
+units) are those of :data:`UNITS`, converted here and nowhere else
+(:func:`build_integrator`).
 """
 
 from __future__ import annotations
 
 import contextlib
+import difflib
 import inspect
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -23,17 +31,56 @@ import ase_spin
 import ase_spin.terms
 
 from ..calculator import SpinLatticeCalculator
+from ..hamiltonian import Hamiltonian
 from ..md import SpinLatticeDynamics
+from ..md.errors import TimestepWarning
+from ..spins import get_moments, split_moments
 from ..terms import Term
 
-__all__ = ["load_input", "build_scene", "build_integrator", "in_folder", "make", "take",
-           "refuse_unknown", "InputError"]
+__all__ = ["load_input", "check_input", "build_scene", "build_integrator", "in_folder", "make",
+           "take", "refuse_unknown", "check_keywords", "check_table", "warn_implausible",
+           "in_input_words", "InputError", "InputWarning", "UNITS", "TABLE_KEYS"]
 
 _TABLES = ("structure", "spins", "velocities", "terms", "calculator", "integrator", "output")
+
+#: The keys of the tables with fixed keys ([[terms]] and [integrator] take
+#: their class's keywords).
+TABLE_KEYS = {
+    "structure": ("file", "index", "format", "build", "repeat", "rattle", "seed"),
+    "spins": ("magnitude", "direction", "cone", "seed"),
+    "velocities": ("temperature", "seed"),
+    "calculator": ("skin", "conventions"),
+    "output": ("trajectory", "log", "xyz", "interval", "overwrite"),
+}
+
+#: [integrator] keys given in the input file in other units than the Python
+#: API's: key -> (the file's unit, its value in ASE units). Times are in fs
+#: throughout the file, so a rate is in 1/fs (ASE's own advice for its
+#: Langevin, ``friction=0.01 / units.fs``, is ``friction = 0.01`` here).
+UNITS = {
+    "timestep": ("fs", units.fs),
+    "friction": ("1/fs", 1.0 / units.fs),
+    "hbar": ("eV·fs", units.fs),
+}
+
+#: Keywords of ASE's dynamics that the program sets itself (outputs in [output])
+#: or that have no meaning in a file.
+_OUTPUT_KEYWORDS = ("trajectory", "logfile", "loginterval", "append_trajectory")
+_NOT_FROM_FILES = ("atoms", "comm", "master")
+#: How [integrator]'s keys are checked: the program passes ``_GIVEN`` itself (the
+#: timestep converted from the file's fs; the outputs are [output]'s).
+_GIVEN = ("atoms", "timestep", "trajectory", "logfile", "loginterval")
+_INTEGRATOR_CHECK = {"hidden": _OUTPUT_KEYWORDS + _NOT_FROM_FILES, "units_of": UNITS,
+                     "extra": ("steps", "timestep")}
 
 
 class InputError(ValueError):
     """The input file is wrong; the message says where."""
+
+
+class InputWarning(UserWarning):
+    """A value of the input file that runs, but is probably not what was meant;
+    the message names the table, the key and its unit."""
 
 
 # -- reading the input ----------------------------------------------------------
@@ -47,7 +94,8 @@ def _toml():
 
 
 def load_input(path):
-    """The input file as a dict, its tables checked against the known ones."""
+    """The input file as a dict, its tables checked against the known ones and
+    the keys of the fixed tables against theirs (:data:`TABLE_KEYS`)."""
     tomllib = _toml()
     path = Path(path)
     if not path.is_file():
@@ -57,15 +105,17 @@ def load_input(path):
             spec = tomllib.load(fd)
         except tomllib.TOMLDecodeError as err:
             raise InputError(f"{str(path)!r} is not valid TOML: {err}") from None
-    unknown = sorted(set(spec) - set(_TABLES))
+    unknown = [name for name in spec if name not in _TABLES]
     if unknown:
-        raise InputError(f"unknown table(s) {', '.join(unknown)} in {str(path)!r}; "
-                         f"the tables are {', '.join(_TABLES)}")
+        raise InputError("; ".join(
+            f"unknown table [{name}] in {str(path)!r}{_nearest(name, _TABLES, '[{}]')}"
+            for name in unknown) + f" (the tables are {', '.join(_TABLES)})")
     for name in _TABLES:
         want = list if name == "terms" else dict
         if name in spec and not isinstance(spec[name], want):
             form = "[[terms]] tables" if want is list else f"a [{name}] table"
             raise InputError(f"{name} must be {form}, got {spec[name]!r}")
+    check_input(spec)
     return spec
 
 
@@ -80,14 +130,92 @@ def take(table, where, key, default=None, kind=None):
         names = " or ".join({"int": "an integer", "float": "a number", "str": "a string",
                              "list": "a list", "dict": "a table", "bool": "true/false"}
                             [k.__name__] for k in kinds)
-        raise InputError(f"[{where}] {key} must be {names}, got {value!r}")
+        raise InputError(f"{_label(where)} {key} must be {names}, got {value!r}")
     return value
 
 
-def refuse_unknown(table, where):
-    """Raise InputError naming the keys left in ``table`` (none may be)."""
-    if table:
-        raise InputError(f"[{where}] has unknown key(s) {', '.join(sorted(table))}")
+def _label(where):
+    """A table's name as the message shows it: ``structure`` -> ``[structure]``
+    (labels such as ``[[terms]] #2 (EAM)`` as they are)."""
+    return where if where.startswith("[") else f"[{where}]"
+
+
+def _nearest(word, choices, form="'{}'"):
+    """`` (did you mean 'x'?)`` for the closest of ``choices``, or ''."""
+    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
+    return f" (did you mean {form.format(close[0])}?)" if close else ""
+
+
+def refuse_unknown(table, where, allowed=None):
+    """Raise InputError naming the keys of ``table`` that are not ``allowed``
+    (all of them if ``allowed`` is None: the keys left after the known ones
+    were taken), each with the nearest allowed key where one is close."""
+    allowed = () if allowed is None else tuple(allowed)
+    unknown = [k for k in table if k not in allowed]
+    if not unknown:
+        return
+    problems = [f"unknown key {k!r} in {_label(where)}{_nearest(str(k), allowed)}"
+                for k in unknown]
+    if not any("did you mean" in p for p in problems) and allowed:
+        problems[-1] += f" (its keys: {', '.join(allowed)})"
+    raise InputError("; ".join(problems))
+
+
+def _needs(where, missing, units_of=None):
+    units_of = units_of or {}
+    names = [f"{k!r}" + (f" ({units_of[k][0]})" if k in units_of else "") for k in missing]
+    return InputError(f"{_label(where)} needs {' and '.join(names)}")
+
+
+def _keywords(function):
+    """(accepted, required): the names ``function(**keywords)`` takes and those
+    it needs (no default); a class's ``**kwargs`` passed on to its bases'
+    ``__init__`` are followed up its MRO. None where they cannot be told
+    (no signature, or ``**kwargs`` to the end)."""
+    try:
+        own = inspect.signature(function)
+    except (TypeError, ValueError):
+        return None
+    keyword = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    required = [p.name for p in own.parameters.values()
+                if p.kind in keyword and p.default is inspect.Parameter.empty]
+    if inspect.isclass(function):
+        inits = [vars(c)["__init__"] for c in function.__mro__
+                 if c is not object and "__init__" in vars(c)]
+    else:
+        inits = [function]
+    accepted = []
+    for init in inits:
+        try:
+            parameters = list(inspect.signature(init).parameters.values())
+        except (TypeError, ValueError):
+            return None
+        if init is not function:
+            parameters = parameters[1:]  # self
+        for p in parameters:
+            if p.kind in keyword and p.name not in accepted:
+                accepted.append(p.name)
+        if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters):
+            return accepted, required
+    return None
+
+
+def check_keywords(keys, function, where, given=(), hidden=(), units_of=None, extra=()):
+    """Refuse, before ``function`` is called, the ``keys`` of an input table
+    that it does not take (with the nearest it does) and the keywords it needs
+    that are missing. ``given``: keywords the program passes itself (not from
+    the file); ``hidden``: keywords it takes that a file may not set;
+    ``extra``: keys of the table the program takes itself."""
+    found = _keywords(function)
+    if found is None:
+        return
+    accepted, required = found
+    allowed = list(extra) + [k for k in accepted
+                             if k not in given and k not in hidden and k not in extra]
+    refuse_unknown(dict.fromkeys(keys), where, allowed)
+    missing = [k for k in required if k not in keys and k not in given]
+    if missing:
+        raise _needs(where, missing, units_of)
 
 
 # -- objects by name --------------------------------------------------------------
@@ -107,24 +235,57 @@ def _exported(base):
     return found
 
 
-def make(spec, where, base=object):
-    """Build ``spec["type"](**rest)``: a class exported by ase_spin, a subclass
-    of ``base``; nested tables with a ``type`` key are built the same way."""
-    spec = dict(spec)
-    name = spec.pop("type", None)
+def _class_of(spec, where, base):
+    """The class named by a table's ``type``: exported by ase_spin, a subclass
+    of ``base``."""
+    name = spec.get("type")
     choices = _exported(base)
     if not isinstance(name, str):
         raise InputError(f"{where} needs type = one of {', '.join(sorted(choices))}")
     if name not in choices:
-        raise InputError(f"{where}: unknown type {name!r}; choose one of "
-                         f"{', '.join(sorted(choices))}")
-    kwargs = {k: _value(v, f"{where}.{k}") for k, v in spec.items()}
+        raise InputError(f"{where}: unknown type {name!r}{_nearest(name, choices)}; choose "
+                         f"one of {', '.join(sorted(choices))}")
+    return choices[name]
+
+
+def check_table(spec, where, base=object, given=(), hidden=(), units_of=None, extra=()):
+    """Check a table that builds an object (``type`` and keywords), and the
+    tables with a ``type`` inside it, without building anything: the type is
+    known, the keys are the class's keywords (:func:`check_keywords`).
+    Returns the class."""
+    cls = _class_of(spec, where, base)
+    keys = [k for k in spec if k != "type"]
+    check_keywords(keys, cls, f"{where} ({spec['type']})", given, hidden, units_of, extra)
+    for k in keys:
+        _check_nested(spec[k], f"{where}.{k}")
+    return cls
+
+
+def _check_nested(v, where):
+    if isinstance(v, dict):
+        if "type" in v:
+            check_table(v, where)
+        else:
+            for k, x in v.items():
+                _check_nested(x, f"{where}.{k}")
+    elif isinstance(v, list):
+        for k, x in enumerate(v):
+            _check_nested(x, f"{where}[{k}]")
+
+
+def make(spec, where, base=object, given=None, hidden=(), units_of=None, extra=()):
+    """Build ``spec["type"](**rest, **given)``: a class exported by ase_spin, a
+    subclass of ``base``; nested tables with a ``type`` key are built the same
+    way. Everything is checked first (:func:`check_table`); ``given``:
+    keywords the program passes itself, not from the file."""
+    given = dict(given or {})
+    cls = check_table(spec, where, base, given, hidden, units_of, extra)
+    label = f"{where} ({spec['type']})"
+    kwargs = {k: _value(v, f"{where}.{k}") for k, v in spec.items() if k != "type"}
     try:
-        return choices[name](**kwargs)
-    except TypeError as err:
-        raise InputError(f"{where} ({name}): {err}") from None
-    except ValueError as err:
-        raise InputError(f"{where} ({name}): {err}") from None
+        return cls(**kwargs, **given)
+    except (TypeError, ValueError) as err:
+        raise InputError(f"{label}: {err}") from None
 
 
 def _value(v, where):
@@ -143,10 +304,11 @@ def _structure(table):
     from ase import build
     from ase.io import read
 
+    refuse_unknown(table, "structure", TABLE_KEYS["structure"])
     t = dict(table)
     if ("file" in t) == ("build" in t):
-        raise InputError("[structure] needs either file = \"...\" (read with ase.io.read) "
-                         "or build = {function = \"bulk\", ...} (ase.build)")
+        raise InputError("[structure] needs either 'file' (a file ase.io.read reads) or "
+                         "'build' = {function = \"bulk\", ...} (a function of ase.build)")
     if "file" in t:
         path = take(t, "structure", "file", kind=str)
         index = take(t, "structure", "index", -1, (int, str))
@@ -164,8 +326,10 @@ def _structure(table):
         names = sorted(n for n in getattr(build, "__all__", dir(build))
                        if not n.startswith("_") and callable(getattr(build, n)))
         if function not in names:
-            raise InputError(f"[structure] build.function must be a function of ase.build "
-                             f"({', '.join(names)}); got {function!r}")
+            raise InputError(f"[structure] build.function must be a function of ase.build"
+                             f"{_nearest(str(function), names)} ({', '.join(names)}); got "
+                             f"{function!r}")
+        check_keywords(recipe, getattr(build, function), f"[structure] build = {function}(...)")
         try:
             atoms = getattr(build, function)(**recipe)
         except (TypeError, ValueError, KeyError, RuntimeError) as err:
@@ -177,11 +341,11 @@ def _structure(table):
     seed = take(t, "structure", "seed", 0, int)
     if rattle:
         atoms.rattle(float(rattle), seed=seed)
-    refuse_unknown(t, "structure")
     return atoms
 
 
 def _spins(atoms, table):
+    refuse_unknown(table, "spins", TABLE_KEYS["spins"])
     t = dict(table)
     rng = np.random.default_rng(take(t, "spins", "seed", 0, int))
     n = len(atoms)
@@ -195,7 +359,6 @@ def _spins(atoms, table):
         magnitude = np.array([float(magnitude[s]) for s in symbols])
     direction = take(t, "spins", "direction", None, (list, str))
     cone = take(t, "spins", "cone", None, (int, float))
-    refuse_unknown(t, "spins")
     if direction is None:
         has = atoms.has("initial_magmoms") and np.ndim(atoms.arrays["initial_magmoms"]) == 2
         axis = ase_spin.get_spins(atoms) if has else np.array([0.0, 0.0, 1.0])
@@ -240,12 +403,12 @@ def _in_cone(axes, degrees, rng):
 def _velocities(atoms, table):
     from ase.md import velocitydistribution as vd
 
+    refuse_unknown(table, "velocities", TABLE_KEYS["velocities"])
     t = dict(table)
     temperature = take(t, "velocities", "temperature", None, (int, float))
     seed = take(t, "velocities", "seed", 0, int)
-    refuse_unknown(t, "velocities")
     if temperature is None:
-        raise InputError("[velocities] needs temperature = ... (K)")
+        raise InputError("[velocities] needs 'temperature' (K)")
     if temperature < 0:
         raise InputError(f"[velocities] temperature must be >= 0 K, got {temperature}")
     rng = np.random.default_rng(seed)
@@ -275,9 +438,13 @@ def build_scene(spec):
             raise InputError(f"[[terms]] #{k + 1} must be a table, got {term!r}")
         built.append(make(term, f"[[terms]] #{k + 1}", Term))
     calc = dict(spec.get("calculator", {}))
+    refuse_unknown(calc, "calculator", TABLE_KEYS["calculator"])
     skin = take(calc, "calculator", "skin", 0.3, (int, float))
-    refuse_unknown(calc, "calculator")
-    atoms.calc = SpinLatticeCalculator(built, skin=skin)
+    conventions = take(calc, "calculator", "conventions", "physical", str)
+    try:
+        atoms.calc = SpinLatticeCalculator(built, skin=skin, conventions=conventions)
+    except ValueError as err:
+        raise InputError(f"[calculator] {err}") from None
     spin_terms = [t for t in built if t.spin_dependent]
     moments = atoms.arrays.get("initial_magmoms")
     if moments is not None and np.ndim(moments) == 1 and np.any(moments):
@@ -288,30 +455,134 @@ def build_scene(spec):
         raise InputError(f"the terms {', '.join(type(t).__name__ for t in spin_terms)} act "
                          "on spins, but the structure has no magnetic moments: add a "
                          "[spins] table (magnitude = ... μB)")
+    _bind_terms(atoms, built, skin)
     return atoms
+
+
+def _bind_terms(atoms, terms, skin):
+    """Bind the terms to the structure now (its species, through an EAM file's
+    element map, its cell and moments), so that a mismatch is refused before
+    anything runs, naming the [[terms]] table it comes from."""
+    try:
+        atoms.calc.bound_evaluator(atoms)
+    except (ValueError, TypeError, KeyError) as err:
+        mu = split_moments(get_moments(atoms))[1]
+        for k, term in enumerate(terms):
+            try:
+                Hamiltonian([term], skin=skin).bind(atoms.numbers, atoms.cell.array,
+                                                     atoms.pbc, mu)
+            except (ValueError, TypeError, KeyError) as own:
+                raise InputError(f"[[terms]] #{k + 1} ({type(term).__name__}): "
+                                 f"{_text(own)}") from None
+        raise InputError(f"[structure]: {_text(err)}") from None
+
+
+def _text(err):
+    return err.args[0] if isinstance(err, KeyError) and err.args else str(err)
+
+
+def _to_ase_units(table, where="integrator"):
+    """The file's values of :data:`UNITS` in ASE units, in place: the one place
+    where the input file's units become the Python API's. Checked first, in
+    the file's units: numbers, > 0 for the timestep and ħ, >= 0 for a rate."""
+    for key, (unit, factor) in UNITS.items():
+        if key not in table:
+            continue
+        value = take(table, where, key, kind=(int, float))
+        positive = key in ("timestep", "hbar")
+        if not (value > 0 if positive else value >= 0):
+            raise InputError(f"{_label(where)} {key} = {value!r} ({unit}) must be "
+                             f"{'> 0' if positive else '>= 0'}")
+        table[key] = float(value) * factor
 
 
 def build_integrator(atoms, spec, paths, interval, steps_override):
     """The integrator of an input dict's [integrator] table on ``atoms``, writing to
     ``paths`` (trajectory, log) every ``interval`` steps; returns (it, steps):
-    ``steps_override`` or the table's ``steps``."""
-    t = dict(spec.get("integrator", {}))
-    t.setdefault("type", "CollectivePRK")
+    ``steps_override`` or the table's ``steps``. The table's keys are checked
+    against the integrator's keywords before it is built, and its values of
+    :data:`UNITS` converted to ASE units."""
+    t = _integrator_table(spec)
     steps = take(t, "integrator", "steps", None, int)
     if steps_override is not None:
         steps = steps_override
-    if steps is None or steps < 0:
-        raise InputError(f"[integrator] needs steps = a number >= 0, got {steps!r}")
-    timestep = take(t, "integrator", "timestep", None, (int, float))
-    if timestep is None or not timestep > 0:
-        raise InputError(f"[integrator] needs timestep = ... (fs, > 0), got {timestep!r}")
-    t["timestep"] = float(timestep) * units.fs
-    t["atoms"] = atoms
-    for key in ("trajectory", "logfile", "loginterval"):
+    if steps is None:
+        raise _needs("integrator", ["steps"])
+    if steps < 0:
+        raise InputError(f"[integrator] steps must be >= 0, got {steps}")
+    if "timestep" not in t:
+        raise _needs("integrator", ["timestep"], UNITS)
+    _to_ase_units(t)
+    given = {"atoms": atoms, "timestep": t.pop("timestep"), "trajectory": paths["trajectory"],
+             "logfile": paths["log"], "loginterval": interval}
+    dyn = make(t, "[integrator]", SpinLatticeDynamics, given=given, **_INTEGRATOR_CHECK)
+    return dyn, steps
+
+
+
+def _integrator_table(spec):
+    """A copy of the [integrator] table, its type defaulted, output keywords refused."""
+    t = dict(spec.get("integrator", {}))
+    t.setdefault("type", "CollectivePRK")
+    for key in _OUTPUT_KEYWORDS:
         if key in t:
             raise InputError(f"[integrator] {key}: outputs are set in [output]")
-    t.update(trajectory=paths["trajectory"], logfile=paths["log"], loginterval=interval)
-    return make(t, "[integrator]", SpinLatticeDynamics), steps
+    return t
+
+
+def check_input(spec):
+    """Check every table's keys, before anything is built: the fixed tables'
+    (:data:`TABLE_KEYS`), each [[terms]] table's and [integrator]'s against
+    their class's keywords (nested ``type`` tables too)."""
+    for name, keys in TABLE_KEYS.items():
+        refuse_unknown(spec.get(name, {}), name, keys)
+    for k, term in enumerate(spec.get("terms", [])):
+        if not isinstance(term, dict):
+            raise InputError(f"[[terms]] #{k + 1} must be a table, got {term!r}")
+        check_table(term, f"[[terms]] #{k + 1}", Term)
+    # steps and timestep are checked when built (--steps may stand for steps)
+    check_table(_integrator_table(spec), "[integrator]", SpinLatticeDynamics, given=_GIVEN,
+                **_INTEGRATOR_CHECK)
+
+
+def warn_implausible(spec, steps):
+    """Warn (:class:`InputWarning`) about values that run but are probably not
+    what was meant, naming the key and its unit: a lattice bath whose
+    relaxation time 1/friction is longer than the run (the lattice stays far
+    from the bath temperature) or shorter than a step (overdamped: its motion
+    is mostly noise)."""
+    t = spec.get("integrator", {})
+    friction, timestep = t.get("friction"), t.get("timestep")
+    if not (_positive_number(friction) and _positive_number(timestep)):
+        return
+    tau = 1.0 / friction
+    typical = ("typical values are 0.001 to 0.1 (1/fs): ASE's friction=0.01/units.fs is "
+               "0.01 here, LAMMPS's fix langevin damp 0.1 ps (metal units) is 0.01")
+    key = f"friction = {friction:g} (1/fs) in [integrator]"
+    if steps and tau > steps * timestep:
+        warnings.warn(f"{key}: the lattice relaxes towards the bath temperature over "
+                      f"1/friction = {tau:.4g} fs, longer than the whole run ({steps} steps "
+                      f"x {timestep:g} fs = {steps * timestep:.4g} fs), so it stays far from "
+                      f"it; {typical}", InputWarning, stacklevel=2)
+    elif tau < timestep:
+        warnings.warn(f"{key}: 1/friction = {tau:.3g} fs is shorter than a step "
+                      f"({timestep:g} fs): the lattice is overdamped, its motion mostly "
+                      f"noise; {typical}", InputWarning, stacklevel=2)
+
+
+def _positive_number(x):
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0
+
+
+def in_input_words(warning):
+    """A warning's text for a user of input files: a :class:`TimestepWarning`
+    (worded by the integrator for Python callers) as the input file's
+    ``timestep = ... (fs)`` in [integrator], from its figures; others as they
+    are."""
+    if isinstance(warning, TimestepWarning):
+        return (f"timestep = {warning.timestep_fs:.4g} (fs) in [integrator]: "
+                f"{'; '.join(warning.problems)}; {warning.advice}")
+    return str(warning)
 
 
 def in_folder(folder):

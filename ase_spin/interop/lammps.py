@@ -443,6 +443,9 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
              f"read_data {data_name}", ""]
     deck += [f"group {types.group(s)} type {k + 1}" for k, s in enumerate(species)]
     deck += [""] + _pair_commands(parts, directory)
+    # after pair_coeff: the eam styles set each type's mass from the potential file
+    # (CoAl.eam.alloy: Co 58.9332, ASE 58.933194), which would override the data file's
+    deck += [f"mass {k + 1} {number_text(m)}" for k, m in enumerate(masses)]
     deck += ["neighbor 1.0 bin", "neigh_modify every 1 delay 0 check yes", ""]
     deck += _fix_commands(parts)
     if thermostat is not None:

@@ -17,7 +17,10 @@ extxyz column   OVITO property          what it holds
 ==============  ======================  =====================================
 
 ``spin_angle`` and ``spin_z`` are scalars, so ``ase gui`` lists them under
-View → Colors ("By user-defined ...") too. See docs/viewing.md.
+View → Colors ("By user-defined ...") too: that is how to see s_z of a film
+from above, where the arrows of spins along the normal have no length.
+:func:`plot_spins` draws a matplotlib picture: 3D, or seen along the normal
+for a flat system (:func:`film_plane`). See docs/viewing.md.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import numpy as np
 from ..spins import get_moments, split_moments
 
 __all__ = ["spin_colors", "spin_angles", "magnetization", "write_ovito_xyz",
-           "ovito_pipeline", "plot_spins"]
+           "ovito_pipeline", "plot_spins", "film_plane"]
 
 #: the colour map of :func:`spin_colors`: value −1, 0, +1 (blue, white, red)
 _NEGATIVE = np.array([0.23, 0.30, 0.75])
@@ -71,17 +74,26 @@ def spin_colors(atoms_or_spins, by="angle"):
     through 0 (light grey) to +1 (red), linearly in each channel on each half;
     non-magnetic atoms are grey (:data:`NONMAGNETIC`).
     """
+    spins = _spins_of(atoms_or_spins)
+    rgb = _rgb(_colour_values(spins, by))
+    rgb[~np.any(spins != 0.0, axis=1)] = NONMAGNETIC
+    return rgb
+
+
+def _colour_values(spins, by):
+    """The value in [−1, 1] that :func:`spin_colors` maps to a colour."""
     if not isinstance(by, str) or by not in _COLOR_BY:
         raise ValueError(f"colour by must be one of {_COLOR_BY}, got {by!r}")
-    spins = _spins_of(atoms_or_spins)
     if by == "angle":
         v = np.cos(np.radians(np.nan_to_num(spin_angles(spins))))
     else:
         v = spins[:, "xyz".index(by)]
-    v = np.clip(v, -1.0, 1.0)[:, None]
-    rgb = np.where(v >= 0.0, _ZERO + v * (_POSITIVE - _ZERO), _ZERO - v * (_NEGATIVE - _ZERO))
-    rgb[~np.any(spins != 0.0, axis=1)] = NONMAGNETIC
-    return rgb
+    return np.clip(v, -1.0, 1.0)
+
+
+def _rgb(v):
+    v = np.asarray(v, dtype=float)[:, None]
+    return np.where(v >= 0.0, _ZERO + v * (_POSITIVE - _ZERO), _ZERO - v * (_NEGATIVE - _ZERO))
 
 
 def _spins_of(x):
@@ -220,20 +232,90 @@ def ovito_pipeline(path, arrow_scale=2.0, arrow_width=0.2, radius=0.35):
     return pipeline
 
 
-def plot_spins(atoms, path=None, color_by="angle", ax=None, arrow_length=1.2):
-    """A matplotlib 3D picture of the spins: an arrow s_i at each magnetic atom,
-    coloured as :func:`spin_colors`, non-magnetic atoms as grey points. Draws
-    into ``ax`` (a 3D axes) or a new figure; saves to ``path`` if given.
-    Returns the figure. Needs matplotlib (``pip install 'ase-spin[plot]'``)."""
+def film_plane(atoms, thickness=1.0, ratio=0.1):
+    """The plane of a flat system: ``(normal, e1, e2, flat)``, unit vectors
+    with e1 × e2 = normal.
+
+    The candidate normals are those of the cell's planes (a × b, b × c,
+    c × a; missing cell vectors completed as ASE's ``Cell.complete`` does):
+    only that of the one non-periodic direction when exactly one is
+    non-periodic (a film or slab), else the one along which the positions
+    spread least. The normal points to the side of the cell vector off the
+    plane; e1 is the first cell vector in the plane. ``flat``: the positions
+    spread along the normal by at most ``thickness`` Å, or by at most
+    ``ratio`` times their smaller extent in the plane (a monolayer, a
+    buckled or rattled one, or a few layers of a wide film).
+    """
+    cell = atoms.cell.complete().array
+    pos = np.asarray(atoms.positions, dtype=float)
+    periodic = np.asarray(atoms.pbc, dtype=bool)
+    ks = [int(np.flatnonzero(~periodic)[0])] if (~periodic).sum() == 1 else [2, 0, 1]
+    best = None
+    for k in ks:
+        a, b = cell[(k + 1) % 3], cell[(k + 2) % 3]
+        n = np.cross(a, b)
+        norm = np.linalg.norm(n)
+        if norm < 1e-12:
+            continue
+        n /= norm
+        if cell[k] @ n < 0.0:
+            n = -n
+        e1 = a / np.linalg.norm(a)
+        spread = float(np.ptp(pos @ n)) if len(pos) else 0.0
+        if best is None or spread < best[0] - 1e-9:
+            best = (spread, n, e1, np.cross(n, e1))
+    spread, n, e1, e2 = best
+    in_plane = min(np.ptp(pos @ e1), np.ptp(pos @ e2)) if len(pos) else 0.0
+    flat = spread <= max(thickness, ratio * in_plane)
+    return n, e1, e2, bool(flat)
+
+
+def plot_spins(atoms, path=None, color_by=None, ax=None, arrow_length=None, view="auto"):
+    """A matplotlib picture of the spins, coloured as :func:`spin_colors`.
+
+    ``view="3d"``: a 3D quiver, an arrow s_i centred at each magnetic atom,
+    non-magnetic atoms as grey points, coloured by ``color_by`` (default
+    "angle"). ``view="top"``: the system seen along its normal
+    (:func:`film_plane`), in-plane axes in Å: a 2D quiver of the in-plane
+    part of each spin, coloured by ``color_by`` (default: the component along
+    the normal, s_z for a film in the xy plane; a spin along the normal is a
+    coloured dot), with a colour bar. ``view="auto"`` (default): the top
+    view when the system is flat (a film), else 3D; with ``ax`` given, the
+    kind of ``ax`` (3D or not) decides. ``arrow_length``: Å per unit spin
+    (default 1.2 in 3D; in the top view 0.7 times the spacing of the atoms
+    in the plane).
+
+    Draws into ``ax`` or a new figure; saves to ``path`` if given. Returns
+    the figure. Needs matplotlib (``pip install 'ase-spin[plot]'``)."""
+    if view not in ("auto", "3d", "top"):
+        raise ValueError(f'view must be "auto", "3d" or "top", got {view!r}')
     Figure = _figure_class()
     spins, _ = split_moments(get_moments(atoms))
-    rgb = spin_colors(spins, color_by)
-    magnetic = np.any(spins != 0.0, axis=1)
+    normal, e1, e2, flat = film_plane(atoms)
+    if view == "auto":
+        view = ("3d" if ax.name == "3d" else "top") if ax is not None else (
+            "top" if flat else "3d")
+    if ax is not None and (ax.name == "3d") != (view == "3d"):
+        raise ValueError(f"view={view!r} needs {'a 3D' if view == '3d' else 'a 2D'} axes, "
+                         f"got {ax.name!r} axes")
     if ax is None:
         fig = Figure(figsize=(6, 5))
-        ax = fig.add_subplot(projection="3d")
+        ax = fig.add_subplot(projection="3d") if view == "3d" else fig.add_subplot()
     else:
         fig = ax.figure
+    if view == "3d":
+        _plot_3d(ax, atoms, spins, color_by or "angle",
+                 1.2 if arrow_length is None else arrow_length)
+    else:
+        _plot_top(fig, ax, atoms, spins, color_by, arrow_length, normal, e1, e2)
+    if path is not None:
+        fig.savefig(path, dpi=110)
+    return fig
+
+
+def _plot_3d(ax, atoms, spins, color_by, arrow_length):
+    rgb = spin_colors(spins, color_by)
+    magnetic = np.any(spins != 0.0, axis=1)
     pos = atoms.positions
     # arrows centred on the atoms, as OVITO draws them
     tail = pos - 0.5 * arrow_length * spins
@@ -247,9 +329,56 @@ def plot_spins(atoms, path=None, color_by="angle", ax=None, arrow_length=1.2):
     ax.set_box_aspect(np.maximum(span, 1e-3))
     label = "cos θ to M" if color_by == "angle" else f"s_{color_by}"
     ax.set_title(f"spins, colour: {label} (red +1, blue −1)")
-    if path is not None:
-        fig.savefig(path, dpi=110)
-    return fig
+
+
+def _axis_name(e, fallback):
+    """"x", "−y", ... when ``e`` is a Cartesian axis, else ``fallback``."""
+    k = int(np.argmax(np.abs(e)))
+    if abs(abs(e[k]) - 1.0) > 1e-9:
+        return fallback
+    return ("" if e[k] > 0 else "−") + "xyz"[k]
+
+
+def _plot_top(fig, ax, atoms, spins, color_by, arrow_length, normal, e1, e2):
+    from matplotlib.colors import LinearSegmentedColormap
+
+    magnetic = np.any(spins != 0.0, axis=1)
+    pos = np.asarray(atoms.positions, dtype=float)
+    x, y = pos @ e1, pos @ e2
+    if color_by is None:
+        value = np.clip(spins @ normal, -1.0, 1.0)
+        along = _axis_name(normal, None)
+        label = "s·n (n the film normal)" if along is None else (
+            f"s_{along}" if len(along) == 1 else f"−s_{along[1]}")
+    else:
+        value = _colour_values(spins, color_by)
+        label = "cos θ to M" if color_by == "angle" else f"s_{color_by}"
+    if arrow_length is None:
+        area = np.ptp(x) * np.ptp(y) if len(pos) else 0.0
+        arrow_length = 0.7 * np.sqrt(area / len(pos)) if area > 0.0 else 1.2
+    cmap = LinearSegmentedColormap.from_list("spin", [_NEGATIVE, _ZERO, _POSITIVE])
+    m = magnetic
+    # each magnetic atom a disc of its colour (what shows of a spin along the normal),
+    # its in-plane part an arrow centred on it
+    ax.scatter(x[m], y[m], s=12, c=value[m], cmap=cmap, vmin=-1.0, vmax=1.0, linewidths=0)
+    arrows = ax.quiver(x[m], y[m], arrow_length * (spins[m] @ e1), arrow_length * (spins[m] @ e2),
+                       value[m], cmap=cmap, clim=(-1.0, 1.0), angles="xy", scale_units="xy",
+                       scale=1.0, pivot="middle", edgecolor="0.25", linewidth=0.3)
+    if np.any(~m):
+        ax.scatter(x[~m], y[~m], s=8, color=NONMAGNETIC)
+    ax.set_aspect("equal")
+    pad = 0.6 * arrow_length
+    if len(pos):
+        ax.set_xlim(x.min() - pad, x.max() + pad)
+        ax.set_ylim(y.min() - pad, y.max() + pad)
+    # e1 is the first in-plane cell vector, e2 = n × e1 (in the plane, across it)
+    ax.set_xlabel(f"{_axis_name(e1, 'along the cell vector')} (Å)")
+    ax.set_ylabel(f"{_axis_name(e2, 'across it, in the plane')} (Å)")
+    along = _axis_name(normal, None)
+    seen = ("along the film normal" if along is None else
+            f"from {'+' if len(along) == 1 else ''}{along}")
+    ax.set_title(f"spins seen {seen}, colour: {label}")
+    fig.colorbar(arrows, ax=ax, label=label, shrink=0.8)
 
 
 def _figure_class():

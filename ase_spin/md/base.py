@@ -213,11 +213,15 @@ class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynami
         ω_s = max_i r_i |B_i|/ħ (r_i the precession rate factor), or for the
         fastest vibration, ω_v² ≈ max_i |ΔF_i|/(m_i |δ_i|) from one lattice
         evaluation at positions displaced by δ (|δ_i| = 10⁻³ Å, random
-        directions); or |h| below :data:`MIN_TIMESTEP_FS` fs (a unit slip)."""
+        directions); or |h| below :data:`MIN_TIMESTEP_FS` fs (a unit slip).
+        The warning (:class:`TimestepWarning`) states figures valid whatever
+        the caller's units; the hint about ASE time units only where the
+        number looks like a value meant in fs (:meth:`_unit_hint`)."""
         self._checked_dt = self.dt
         h = abs(self.dt)
         ev = self.ev
         problems = []
+        fastest = 0.0
         if h < MIN_TIMESTEP_FS * units.fs:
             problems.append(f"it is below {MIN_TIMESTEP_FS} fs")
         if self.magnetic:
@@ -225,6 +229,7 @@ class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynami
             B = ev.evaluate(q, spins, Want(magnetic_forces=True)).magnetic_forces
             omega = float(np.max(self._precession_rates(mu) * np.linalg.norm(B, axis=1)))
             omega /= self.hbar
+            fastest = max(fastest, omega)
             if h * omega > MAX_PHASE:
                 problems.append(f"the fastest spin precesses by {h * omega:.2g} rad per step "
                                 f"(period {2 * np.pi / omega / units.fs:.3g} fs)")
@@ -235,15 +240,32 @@ class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynami
             dF = ev.lattice(q + d, _FORCES).forces - forces
             k = np.linalg.norm(dF, axis=1) / 1e-3
             omega = float(np.sqrt(np.max(k / masses)))
+            fastest = max(fastest, omega)
             if h * omega > MAX_PHASE:
                 problems.append(f"the fastest vibration turns by {h * omega:.2g} rad per step "
                                 f"(period ≈ {2 * np.pi / omega / units.fs:.3g} fs)")
         if problems:
-            warnings.warn(
-                f"timestep {self.dt / units.fs:.4g} fs ({self.dt:.4g} ASE time units; "
-                f"1 fs = ase.units.fs = {units.fs:.4g}): {'; '.join(problems)}. Timesteps "
-                f"are in ASE units: write e.g. timestep=0.1 * ase.units.fs. Keep h·ω below "
-                f"{MAX_PHASE} rad for accurate dynamics.", TimestepWarning, stacklevel=4)
+            too_small = h < MIN_TIMESTEP_FS * units.fs
+            advice = ("so small a timestep is most likely a unit slip" if too_small else
+                      f"keep h·ω below {MAX_PHASE} rad per step (about 20 steps per period) "
+                      "for accurate dynamics")
+            warnings.warn(TimestepWarning(self.dt / units.fs, problems, advice,
+                                          self._unit_hint(fastest, too_small)), stacklevel=4)
+
+    def _unit_hint(self, fastest, too_small):
+        """For a Python caller, where the numbers show a likely slip of units: a
+        timestep far too small (seconds or ps for ASE time units), or one written
+        as a number of fs (``timestep=0.1``: 1.018 fs) that, read as fs, would
+        pass the check. '' otherwise (the figures of the warning say it all)."""
+        ase_time = f"Timesteps are in ASE time units (1 fs = ase.units.fs = {units.fs:.4g})"
+        if too_small:
+            return f"{ase_time}."
+        x = self.dt
+        typed = x == float(f"{x:.3g}")  # a number typed by hand, not a product with units.fs
+        meant = abs(x) * units.fs
+        if not typed or meant < MIN_TIMESTEP_FS * units.fs or meant * fastest > MAX_PHASE:
+            return ""
+        return f"{ase_time}: for {x:g} fs write timestep={x:g} * ase.units.fs."
 
     def _precession_rates(self, mu):
         """Per-spin factor r_i of the precession, ds_i/dt = r_i (σ/ħ) s_i × B_i:

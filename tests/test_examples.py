@@ -1,0 +1,96 @@
+"""The example scripts' command lines: --help, where they write (the current folder
+or the --out they are given, never docs/figures unless asked), and files they report
+as written exist. Each runs as a separate process in an empty folder."""
+
+import importlib.util
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = sorted((ROOT / "examples").glob("*.py"))
+
+
+def run(script, *args, cwd):
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
+    return subprocess.run([sys.executable, str(ROOT / "examples" / script), *args], cwd=cwd,
+                          capture_output=True, text=True, env=env, timeout=900,
+                          check=False)
+
+
+def files_in(folder):
+    return sorted(str(p.relative_to(folder)) for p in Path(folder).rglob("*"))
+
+
+def reported(stdout, cwd):
+    """The paths of the script's "wrote PATH" lines (the first word after it)."""
+    paths = [m.group(1) for m in re.finditer(r"^wrote (\S+)", stdout, re.MULTILINE)]
+    return [Path(cwd) / p for p in paths]
+
+
+def test_every_example_is_found():
+    assert {p.name for p in EXAMPLES} >= {"demo.py", "magnetisation_curve.py", "metals.py",
+                                          "paper_chain.py", "skyrmion.py", "view_spins.py"}
+
+
+@pytest.mark.parametrize("script", [p.name for p in EXAMPLES])
+def test_help_prints_usage_and_writes_nothing(tmp_path, script):
+    """`--help` is argparse's: usage on stdout, exit 0, and no file or folder
+    (a folder named --help, say) left behind."""
+    done = run(script, "--help", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("usage:") and "--out" in done.stdout
+    assert files_in(tmp_path) == []
+
+
+@pytest.mark.parametrize("script", ["view_spins.py", "paper_chain.py"])
+def test_examples_writing_several_files_refuse_a_png_out(tmp_path, script):
+    done = run(script, "--out", "x.png", cwd=tmp_path)
+    assert done.returncode == 2 and "--out is a folder" in done.stderr
+    assert files_in(tmp_path) == []
+
+
+def test_skyrmion_writes_the_png_it_is_given_or_into_a_folder(tmp_path):
+    done = run("skyrmion.py", "--size", "8", "--steps", "5", "--out", "sky.png", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert files_in(tmp_path) == ["sky.png"]
+    assert reported(done.stdout, tmp_path) == [tmp_path / "sky.png"]
+    done = run("skyrmion.py", "--size", "8", "--steps", "5", "--out", "pictures", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert files_in(tmp_path) == ["pictures", "pictures/skyrmion.png", "sky.png"]
+
+
+def test_metals_plots_into_the_current_folder(tmp_path):
+    """The default is iron.png here (it was docs/figures/iron.png); the top panel
+    is the conservation check, E_tot − E_tot(0)."""
+    from ase_spin.terms.eam_files import lammps_potential_path
+
+    try:
+        lammps_potential_path("Fe_mm.eam.fs")
+    except FileNotFoundError:
+        pytest.skip("Fe_mm.eam.fs not found")
+    pytest.importorskip("matplotlib")
+    done = run("metals.py", "--steps", "50", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert files_in(tmp_path) == ["iron.png"]
+    assert reported(done.stdout, tmp_path) == [tmp_path / "iron.png"]
+    done = run("metals.py", "--steps", "50", "--out", "fe.png", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert files_in(tmp_path) == ["fe.png", "iron.png"]
+
+
+def test_magnetisation_curve_out_is_a_picture_or_a_folder():
+    spec = importlib.util.spec_from_file_location("magnetisation_curve",
+                                                  ROOT / "examples" / "magnetisation_curve.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)  # main() only runs as a script
+    assert module.output_paths(Path("mt.png")) == (Path("mt.png"), Path("mt.txt"))
+    assert module.output_paths(Path("out/M.PNG")) == (Path("out/M.PNG"), Path("out/M.txt"))
+    assert module.output_paths(Path(".")) == (Path("magnetisation_curve.png"),
+                                              Path("magnetisation_curve.txt"))
+    assert module.output_paths(Path("figs")) == (Path("figs/magnetisation_curve.png"),
+                                                 Path("figs/magnetisation_curve.txt"))
