@@ -12,6 +12,7 @@ system-wide install run by a user): the cache goes to the user's cache folder.
 
     python benchmarks/first_use.py [--unwritable] [--pip]
     python benchmarks/first_use.py --before OLD_TREE [--repeat 2]
+    python benchmarks/first_use.py --after-compile
 
 ``--before`` measures another source tree (e.g. ``git worktree add /tmp/old
 <commit>``) in the same run: for each repeat, each tree in turn (alternating),
@@ -68,6 +69,30 @@ t.append(time.perf_counter())
 CollectivePRK(scene([Zeeman([0, 0, 1.0]), UniaxialAnisotropy(0.01, [0, 0, 1])]), 0.1 * units.fs).run(2)
 t.append(time.perf_counter())
 print(json.dumps({"stages": [b - a for a, b in zip(t, t[1:])], "file": ase_spin.__file__}))
+"""
+
+#: A script whose combination of terms and integrators the built-in set of
+#: ``ase-spin compile`` does not run: bcc Fe with exchange, DMI, cubic
+#: anisotropy, biquadratic exchange and a field, NVE (order 4) then Langevin.
+NEW_COMBINATION = r"""
+import json, time
+t0 = time.perf_counter()
+import numpy as np
+from ase import units
+from ase.build import bulk
+import ase_spin
+atoms = bulk("Fe", "bcc", a=2.87, cubic=True).repeat(6)
+ase_spin.set_spins(atoms, np.random.default_rng(0).normal(size=(len(atoms), 3)) + [0, 0, 3], 2.2)
+atoms.calc = ase_spin.SpinLatticeCalculator([
+    ase_spin.LennardJones(0.3, 2.3, 4.0, cutoff="shift"),
+    ase_spin.Exchange(ase_spin.BetheSlater(0.03, 0.002, 1.4), rc=3.5),
+    ase_spin.DMI(0.002, [0, 0, 1], rc=2.6), ase_spin.CubicAnisotropy(1e-4, 0.0),
+    ase_spin.BiquadraticExchange(ase_spin.BetheSlater(0.003, 0.0, 1.4),
+                                 ase_spin.BetheSlater(0.001, 0.0, 1.4), rc=2.6),
+    ase_spin.Zeeman([0, 0, 2.0])])
+ase_spin.CollectivePRK(atoms, 0.1 * units.fs, order=4).run(5)
+ase_spin.Langevin(atoms, 0.1 * units.fs, 300.0, spin_damping=0.05, friction=0.001, rng=1).run(5)
+print(json.dumps({"wall": time.perf_counter() - t0}))
 """
 
 STAGES = ["import ase_spin", "calculator E, F, B, stress", "CollectivePRK, 2 steps",
@@ -183,6 +208,33 @@ def compare(before, repeat):
                                            for _, xs in columns) + " |")
 
 
+def after_compile():
+    """A fresh copy: ``ase-spin compile`` (its built-in set), then the 108-atom
+    script, examples/demo.py and :data:`NEW_COMBINATION` in new processes."""
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        copy = tmp / "copy"
+        _copy_source(copy)
+        neutral = tmp / "run"
+        neutral.mkdir()
+        env = _clean_env(PYTHONPATH=str(copy))
+        _, compile_wall, compile_cpu = _timed(
+            [sys.executable, "-c", "from ase_spin.app.cli import main; main(['compile'])"],
+            env, neutral)
+        rows = [("ase-spin compile", compile_wall, compile_cpu)]
+        script = run_child(sys.executable, env, neutral)
+        rows.append(("108-atom script (built-in terms)", script["wall"], script["cpu"]))
+        demo = run_demo(sys.executable, env, neutral)
+        rows.append(("examples/demo.py", demo["wall"], demo["cpu"]))
+        for label in ("new combination, first run", "new combination, second run"):
+            done, wall, cpu = _timed([sys.executable, "-c", NEW_COMBINATION], env, neutral)
+            rows.append((label, wall, cpu))
+        print("Fresh copy; ase-spin compile, then scripts in new processes:\n")
+        print("| run | wall (s) | CPU (s) |\n|---|---|---|")
+        for label, wall, cpu in rows:
+            print(f"| {label} | {wall:.1f} | {cpu:.1f} |")
+
+
 def _cache_files(folder):
     return sorted(str(p) for p in Path(folder).rglob("*.nbi"))
 
@@ -208,6 +260,9 @@ def main():
     parser.add_argument("--before", metavar="OLD_TREE",
                         help="another source tree to measure in the same run, alternating")
     parser.add_argument("--repeat", type=int, default=2, help="rounds with --before")
+    parser.add_argument("--after-compile", action="store_true",
+                        help="ase-spin compile in a fresh copy, then scripts: built-in terms, "
+                             "the demo, a combination the built-in set does not run")
     args = parser.parse_args()
     sys.path.insert(0, str(ROOT / "benchmarks"))
     sys.path.insert(0, str(ROOT))
@@ -215,6 +270,10 @@ def main():
 
     print(describe(), flush=True)
     print(f"# load average at start: {_load()}", flush=True)
+    if args.after_compile:
+        after_compile()
+        print(f"\n# load average at end: {_load()}")
+        return
     if args.before:
         compare(Path(args.before).resolve(), args.repeat)
         print(f"\n# load average at end: {_load()}")

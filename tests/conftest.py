@@ -1,9 +1,49 @@
+import importlib.machinery
+import importlib.util
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 from ase import Atoms
 from ase.build import bulk
 
-import ase_spin
+
+def _source_digest(package):
+    """The source digest of the ase_spin package in folder ``package``, by
+    that copy's own ase_spin._jit.cache.source_digest (loaded on its own)."""
+    spec = importlib.util.spec_from_file_location("_digest_of_copy",
+                                                  package / "_jit" / "cache.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.source_digest()
+
+
+def _import_the_installed_copy():
+    """``pip install ".[test]" && python -m pytest`` puts this tree first on
+    sys.path, beside the copy pip installed: numba would compile every kernel
+    again for the tree's files. When the installed copy is this tree's source
+    (same digest), the tests import it instead, and the kernels an earlier
+    run compiled for it (examples/demo.py) serve the tests too. A tree edited
+    since the install, or an editable install, is imported as it is."""
+    tree = Path(__file__).resolve().parents[1]
+    on_tree = [p for p in sys.path if Path(p or ".").resolve() == tree]
+    if not on_tree or "ase_spin" in sys.modules:
+        return
+    others = [p for p in sys.path if p not in on_tree]
+    spec = importlib.machinery.PathFinder.find_spec("ase_spin", others)
+    if spec is None or spec.origin is None:
+        return
+    installed = Path(spec.origin).resolve().parent
+    if installed == tree / "ase_spin":
+        return
+    if _source_digest(installed) == _source_digest(tree / "ase_spin"):
+        sys.path[:] = others
+
+
+_import_the_installed_copy()
+
+import ase_spin  # noqa: E402
 
 CO_LJ = dict(epsilon=0.4, sigma=2.2742, rc=4.7)
 CO_BS = (0.0446928, 0.003496, 1.4885)

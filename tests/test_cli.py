@@ -455,7 +455,7 @@ def test_an_unstable_run_stops_with_a_message(tmp_path, capsys):
     assert stopped.startswith("ase-spin: the run stopped:") and "fs" in stopped
     assert "no step was completed: removed md.traj, md.log, spins.xyz" in stopped
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.toml"]
-    write_input(tmp_path, timestep=0.5, steps=2, interval=1)
+    write_input(tmp_path, timestep=0.25, steps=2, interval=1)
     assert run_cli("run", path, "--no-progress") == 0
     assert "warning" not in capsys.readouterr().err
     assert len(read(tmp_path / "md.traj", ":")) == 3

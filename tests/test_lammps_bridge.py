@@ -522,7 +522,7 @@ def test_alloy_eam_export_keeps_the_scene_masses(tmp_path):
         m = atoms.get_masses()[:, None]
         p = rng.normal(size=(len(atoms), 3)) * np.sqrt(m * units.kB * 300.0)
         atoms.set_momenta(p - p.mean(axis=0))
-        atoms.calc = ase_spin.SpinLatticeCalculator([
+        atoms.calc = lammps_calculator([
             ase_spin.EAM(path),
             ase_spin.Exchange(ase_spin.BetheSlater(0.0446928, 0.003496, 1.4885), rc=4.0)])
         return atoms

@@ -623,7 +623,7 @@ def test_noisy_auto_solver_takes_locally_exact_sweeps():
     Anderson."""
 
     def make(solver):
-        return Langevin(fcc_cobalt(3, temperature_K=300.0), 0.1 * units.fs, 300.0,
+        return Langevin(fcc_cobalt(3, temperature_K=300.0, conventions="lammps"), 0.1 * units.fs, 300.0,
                         spin_damping=0.1, friction=0.01 / units.fs, rng=2, solver=solver)
 
     auto, jacobi = make("auto"), make("jacobi")

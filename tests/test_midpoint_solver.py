@@ -44,7 +44,7 @@ def test_local_midpoint_solves_one_spin_exactly():
 def frozen_step_reference(dt_fs):
     """The midpoint spins of one frozen-lattice step, solved by scipy's root
     finder (MINPACK hybrid Powell) to xtol 1e-15: s̃ = 2(s·W)W − s."""
-    dyn = CollectivePRK(fcc_cobalt(2), dt_fs * units.fs, lattice="frozen", solver="jacobi")
+    dyn = CollectivePRK(fcc_cobalt(2, conventions="lammps"), dt_fs * units.fs, lattice="frozen", solver="jacobi")
     dyn._sync()
     st = dyn._state
     c = (dt_fs * units.fs * dyn.sigma / dyn.hbar) * st.rate[:, None]
@@ -71,9 +71,10 @@ def test_converges_where_jacobi_fails_to_the_reference_solution(solver):
     diverges; the other solvers give the midpoint solution of an independent
     root finder to round-off, spins of unit length."""
     with pytest.raises(SpinConvergenceError, match="jacobi"):
-        CollectivePRK(fcc_cobalt(2), 4 * units.fs, lattice="frozen", solver="jacobi").run(1)
+        CollectivePRK(fcc_cobalt(2, conventions="lammps"), 4 * units.fs, lattice="frozen",
+                      solver="jacobi").run(1)
     reference = frozen_step_reference(4.0)
-    atoms = fcc_cobalt(2)
+    atoms = fcc_cobalt(2, conventions="lammps")
     dyn = CollectivePRK(atoms, 4 * units.fs, lattice="frozen", solver=solver)
     dyn.run(1)
     s = ase_spin.get_spins(atoms)
@@ -88,7 +89,7 @@ def test_solvers_agree_and_anderson_needs_fewer_sweeps(dt_fs):
     acceleration, than from Jacobi (fcc Co, 100 K lattice moving)."""
     runs = {}
     for solver in ("jacobi", "local", "anderson"):
-        atoms = fcc_cobalt(2)
+        atoms = fcc_cobalt(2, conventions="lammps")
         dyn = CollectivePRK(atoms, dt_fs * units.fs, solver=solver)
         dyn.run(10)
         runs[solver] = (dyn.mean_iterations, atoms.positions.copy(), ase_spin.get_spins(atoms))
@@ -103,7 +104,7 @@ def test_solvers_agree_and_anderson_needs_fewer_sweeps(dt_fs):
 def test_large_steps_run_with_every_order(order):
     """3 fs (Jacobi fails from here, test_md) with orders 2, 4 and 6: the steps
     go through, spins keep their length, the energy stays bounded."""
-    atoms = fcc_cobalt(2)
+    atoms = fcc_cobalt(2, conventions="lammps")
     dyn = CollectivePRK(atoms, 3 * units.fs, order=order)
     e0 = dyn.get_total_energy()
     dyn.run(20)
@@ -116,7 +117,7 @@ def test_anderson_with_single_site_terms():
     Jacobi to round-off, fewer sweeps, and a step Jacobi cannot take."""
     runs = []
     for solver in ("jacobi", "anderson"):
-        atoms = fcc_cobalt(2)
+        atoms = fcc_cobalt(2, conventions="lammps")
         atoms.calc = SpinLatticeCalculator([*fcc_cobalt_terms(), *field_anisotropy_terms()])
         dyn = CollectivePRK(atoms, 1 * units.fs, solver=solver)
         dyn.run(5)
@@ -314,7 +315,7 @@ def test_auto_solver_keeps_its_first_sweeps_while_they_contract_fast(fused, monk
 
     if not fused:
         general_path_only(monkeypatch)
-    dyn = CollectivePRK(fcc_cobalt(2), 0.1 * units.fs)
+    dyn = CollectivePRK(fcc_cobalt(2, conventions="lammps"), 0.1 * units.fs)
     dyn.run(150)
     st = dyn._state
     assert st.modes == {}
@@ -329,7 +330,7 @@ def test_auto_solver_takes_locally_exact_sweeps(order, dt_fs):
     to the tolerance."""
     runs = {}
     for solver in ("auto", "local", "jacobi"):
-        atoms = fcc_cobalt(2)
+        atoms = fcc_cobalt(2, conventions="lammps")
         dyn = CollectivePRK(atoms, dt_fs * units.fs, order=order, solver=solver)
         dyn.run(20)
         runs[solver] = (dyn.total_iterations, atoms.positions.copy(),
@@ -433,7 +434,7 @@ def test_a_solve_stopped_by_a_non_finite_field_names_the_atom():
     field at an atom (IntegrationError), not "reduce the timestep"."""
     from ase_spin.md import IntegrationError
 
-    atoms = fcc_cobalt(2)
+    atoms = fcc_cobalt(2, conventions="lammps")
     dyn = CollectivePRK(atoms, 0.1 * units.fs)
     dyn.run(1)
     st = dyn._state

@@ -617,7 +617,7 @@ def test_a_block_stopping_mid_way_hands_that_step_to_the_general_path(order, swi
     for general in (False, True):
         if general:
             general_path_only(monkeypatch)
-        atoms = fcc_cobalt(3)
+        atoms = fcc_cobalt(3, conventions="lammps")  # the contractions the docstring gives
         dyn = CollectivePRK(atoms, 0.5 * units.fs, order=order, lattice="frozen")
         dyn.run(15)
         monkeypatch.setattr(policy, "AUTO_SWITCH", switch_at)
