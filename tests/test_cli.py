@@ -102,6 +102,10 @@ def test_run_writes_outputs_and_follows_the_same_scene_in_a_script(tmp_path, int
     assert len(xyz) == len(frames)
     np.testing.assert_allclose(xyz[-1].arrays["dipoles"], ase_spin.get_spins(frames[-1]),
                                atol=1e-7)
+    # the magnetic forces of the frames: a column of the xyz file, not its comment line
+    assert "magnetic_forces" not in xyz[-1].info
+    np.testing.assert_allclose(xyz[-1].arrays["magnetic_forces"],
+                               frames[-1].info["magnetic_forces"], rtol=0, atol=1e-8)
 
     atoms = frames[0].copy()
     atoms.set_momenta(frames[0].get_momenta())
@@ -337,6 +341,56 @@ def test_plot_makes_a_png_of_the_log(tmp_path, capsys):
     assert image.shape[0] > 400 and image.shape[1] > 400
     assert image[..., :3].std() > 0.05  # drawn, not blank
     assert run_cli("plot", log) == 0 and (tmp_path / "md.png").is_file()
+
+
+def _small_co(seed=1):
+    atoms = ase_spin.scenes.fcc_cobalt(2, temperature_K=300.0, seed=seed)
+    return atoms
+
+
+def test_plot_draws_the_langevin_balance_and_ase_logs(tmp_path, capsys):
+    """A Langevin log gets the bath's panels (Etot with Ebath; Econs = Etot − Ebath);
+    ASE's own MDLogger logs, per atom and with stress, are read and their
+    energies drawn (per atom: eV/atom), stress too; every log makes a PNG."""
+    pytest.importorskip("matplotlib")
+    from ase.md import MDLogger
+
+    atoms = _small_co()
+    langevin = tmp_path / "langevin.log"
+    with ase_spin.Langevin(atoms, 0.4 * units.fs, 800.0, spin_damping=0.2,
+                           friction=0.02 / units.fs, rng=3, logfile=str(langevin),
+                           loginterval=2) as dyn:
+        dyn.run(6)
+    columns = cli.read_log(langevin)
+    assert len(columns["Time[ps]"]) == 4
+    np.testing.assert_allclose(columns["Econs[eV]"],
+                               columns["Etot[eV]"] - columns["Ebath[eV]"], rtol=0, atol=2e-9)
+    panels = [(names, unit) for _, names, unit in cli.log_panels(columns)]
+    assert panels == [(["Etot[eV]", "Epot[eV]", "Ekin[eV]", "Emag[eV]"], "eV"),
+                      (["Etot[eV]", "Ebath[eV]"], "eV"), (["Econs[eV]"], "eV"),
+                      (["T[K]", "Ts[K]"], None), (["|M|"], None)]
+
+    atoms = _small_co(2)
+    per_atom, stress = tmp_path / "peratom.log", tmp_path / "stress.log"
+    with ase_spin.CollectivePRK(atoms, 0.4 * units.fs) as dyn:
+        for path, kwargs in ((per_atom, dict(peratom=True)), (stress, dict(stress=True))):
+            dyn.attach(dyn.closelater(MDLogger(dyn, atoms, str(path), **kwargs)), interval=2)
+        dyn.run(6)
+    columns = cli.read_log(per_atom)
+    assert len(columns["Time[ps]"]) == 4
+    panels = cli.log_panels(columns)
+    assert panels[0][1:] == (["Etot/N[eV]", "Epot/N[eV]", "Ekin/N[eV]"], "eV/atom")
+    assert [p[1] for p in panels[1:]] == [["T[K]"]]
+    np.testing.assert_allclose(columns["Epot/N[eV]"][-1],
+                               atoms.get_potential_energy() / len(atoms), atol=1e-4)
+    columns = cli.read_log(stress)
+    assert len(columns["Time[ps]"]) == 4 and set(cli.STRESS_COLUMNS) <= set(columns)
+    assert [p[1] for p in cli.log_panels(columns)][-1] == list(cli.STRESS_COLUMNS)
+    np.testing.assert_allclose([columns[c][-1] for c in cli.STRESS_COLUMNS],
+                               atoms.get_stress(include_ideal_gas=True) / units.GPa, atol=2e-3)
+    for log in (langevin, per_atom, stress):
+        assert run_cli("plot", log) == 0 and log.with_suffix(".png").is_file()
+    assert "langevin.png" in capsys.readouterr().out
 
 
 def test_plot_errors(tmp_path, capsys, monkeypatch):

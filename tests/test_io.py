@@ -139,3 +139,48 @@ def test_nothing_to_recover(tmp_path):
     path.write_bytes(b"not a trajectory at all" * 10)
     with pytest.raises(ValueError, match="not an ASE trajectory"):
         recover_trajectory(path)
+
+
+@pytest.mark.parametrize("cls", [CollectivePRK, ase_spin.Langevin])
+def test_attached_trajectory_frames_carry_what_trajectory_frames_carry(cls, tmp_path):
+    """Frames of an attached ``Trajectory(...).write`` (and of ``ase.io.write``
+    of extxyz in an observer) hold the same calculator results and the same
+    magnetic forces, magnetic energy and energy terms in ``info`` as the
+    integrator's own ``trajectory=`` frames, values equal; a user's own info
+    key survives, and the Atoms keep their own info."""
+    from ase.io import write
+
+    a = scene()
+    a.info["mine"] = 1
+    kwargs = (dict(temperature_K=300.0, spin_damping=0.1, friction=0.01 / units.fs, rng=4)
+              if cls is ase_spin.Langevin else {})
+    xyz = tmp_path / "md.xyz"
+    with Trajectory(str(tmp_path / "attached.traj"), "w", a) as traj:
+        dyn = cls(a, 0.2 * units.fs, trajectory=str(tmp_path / "own.traj"), loginterval=2,
+                  **kwargs)
+        dyn.attach(traj.write, interval=2)
+        dyn.attach(lambda: write(xyz, a, append=True), interval=2)
+        dyn.run(4)
+    own = read(tmp_path / "own.traj", ":")
+    attached = read(tmp_path / "attached.traj", ":")
+    texts = read(xyz, ":")
+    assert len(own) == len(attached) == len(texts) == 3
+    for x, y, z in zip(own, attached, texts):
+        assert set(x.calc.results) == set(y.calc.results) >= {"energy", "forces", "stress",
+                                                              "magmoms", "magmom"}
+        for key, value in x.calc.results.items():
+            np.testing.assert_array_equal(y.calc.results[key], value)
+        for key in ("magnetic_forces", "magnetic_energy", "energy_terms"):
+            assert key in x.info and key in y.info and key in z.info
+        np.testing.assert_array_equal(y.info["magnetic_forces"], x.info["magnetic_forces"])
+        np.testing.assert_allclose(z.info["magnetic_forces"], x.info["magnetic_forces"],
+                                   rtol=1e-12, atol=1e-15)
+        assert y.info["magnetic_energy"] == x.info["magnetic_energy"]
+        assert y.info["energy_terms"] == x.info["energy_terms"]
+        assert x.info["mine"] == y.info["mine"] == 1
+        # B of the frame's own state
+        b = x.copy()
+        b.calc = ase_spin.SpinLatticeCalculator(a.calc.hamiltonian.terms)
+        np.testing.assert_allclose(x.info["magnetic_forces"], b.calc.get_magnetic_forces(b),
+                                   rtol=0, atol=1e-12)
+    assert a.info == {"mine": 1}

@@ -23,7 +23,7 @@ import ase_spin
 from ase_spin import (G_ELECTRON, HBAR, MU_B, Exchange, BetheSlater, Langevin, LennardJones,
                       SpinLatticeCalculator, UniaxialAnisotropy, Zeeman, relax_spins,
                       set_spins)
-from ase_spin.md.langevin import NOISY_TOL
+from ase_spin.md.langevin import NOISY_TOL, LangevinLogger
 from ase_spin.scenes import fcc_cobalt
 
 Z = 5.0
@@ -439,6 +439,126 @@ def test_two_temperatures():
     assert ts_se < 3.0 and tl_se < 30.0, (ts_se, tl_se)
     assert abs(ts_m - 50.0) < Z * ts_se, (ts_m, ts_se)
     assert abs(tl_m - 600.0 * 31 / 32) < Z * tl_se, (tl_m, tl_se)
+
+
+class SumsLog(LangevinLogger):
+    """The log line, also keeping every line's sums (N, D) of the spin
+    temperature (a log line: the integrator publishes no frame for it)."""
+
+    def __init__(self, dyn, **kwargs):
+        super().__init__(dyn, io.StringIO(), **kwargs)
+        self.sums = []
+        self.nurdin = []  # 2 Σ s·B: the denominator without the curvature
+
+    def spin_temperature(self, dyn):
+        self.sums.append(dyn.get_spin_temperature_sums())
+        self.nurdin.append(2.0 * np.einsum("ij,ij->", dyn._state.s,
+                                           dyn.get_magnetic_forces()))
+        return super().spin_temperature(dyn)
+
+    def column(self, name):
+        lines = self.logfile.getvalue().splitlines()
+        k = lines[0].split().index(name)
+        return np.array([float(line.split()[k]) for line in lines[1:]])
+
+
+def logged_spin_temperature(n, T, steps, seed=3, interval=5):
+    """fcc Co (its exchange; frozen lattice) with the spin bath at T: after
+    equilibration, a log line every ``interval`` steps (the default window of
+    Ts, SPIN_TEMPERATURE_WINDOW lines). Returns the log (SumsLog)."""
+    atoms = fcc_cobalt(n, temperature_K=0.0, cone_deg=10.0, seed=seed)
+    dyn = Langevin(atoms, 0.5 * units.fs, T, spin_damping=0.5, friction=0.0,
+                   lattice="frozen", rng=seed)
+    dyn.run(1000)
+    log = SumsLog(dyn)
+    dyn.attach(log, interval=interval)
+    dyn.run(steps)
+    return log
+
+
+@pytest.mark.parametrize("T", [600.0, 2200.0])
+def test_spin_temperature_of_the_log_is_the_bath_temperature(T):
+    """108 spins of fcc Co (T_C ≈ 1 070 K at this size, docs/thermostats.md)
+    with the spin bath at T below and above T_C: the log's Ts (the ratio of
+    the sums N, D averaged over its last 10 lines) agrees with T within Z
+    standard errors, taken from the spread of the values of independent
+    windows (every 10th line); so does the run's ratio of averages
+    ΣN/(k_B ΣD) (standard error from batch means of the ratio). Every
+    written Ts, above T_C too, is positive and near T (within a factor 2: a
+    window of 10 lines 5 steps apart spreads by ~15 % at 2 200 K), and a nan
+    (a window whose denominator its fluctuation could cancel) is rare."""
+    from ase_spin.md.logger import SPIN_TEMPERATURE_WINDOW as W
+
+    log = logged_spin_temperature(3, T, 6000)
+    ts = log.column("Ts[K]")
+    assert len(ts) == 1200
+    windows = ts[W - 1::W]  # each of W lines of its own
+    assert np.isnan(windows).sum() <= 1
+    windows = windows[~np.isnan(windows)]
+    mean, se = windows.mean(), windows.std(ddof=1) / np.sqrt(len(windows))
+    assert se < 0.02 * T, (mean, se)
+    assert abs(mean - T) < Z * se, (mean, se)
+    num, den = np.array(log.sums).T
+    blocks = 20
+    k = len(num) // blocks
+    ratio = (num[:k * blocks].reshape(blocks, k).sum(axis=1)
+             / den[:k * blocks].reshape(blocks, k).sum(axis=1)) / units.kB
+    r_mean, r_se = ratio.mean(), ratio.std(ddof=1) / np.sqrt(blocks)
+    assert r_se < 0.02 * T and abs(r_mean - T) < Z * r_se, (r_mean, r_se)
+    written = ts[~np.isnan(ts)]
+    assert np.isnan(ts).mean() < 0.02
+    assert (written > T / 2).all() and (written < 2 * T).all(), (written.min(), written.max())
+
+
+def test_spin_temperature_above_tc_is_never_negative_nor_huge():
+    """32 spins far above T_C (2 200 K): one sample's N/(k_B D) (LAMMPS's
+    estimator) goes negative and to tens of thousands of K, as the issue
+    reported; the log's Ts is written only as a positive number near T, never
+    above √(ΣN)/(6 k_B) of its window, else nan (seldom)."""
+    from ase_spin.md.logger import SPIN_TEMPERATURE_WINDOW as W
+
+    T = 2200.0
+    log = logged_spin_temperature(2, T, 3000)
+    num, den = np.array(log.sums).T
+    single = num / (units.kB * den)
+    assert (single < 0).sum() > 10 and single.max() > 10 * T  # what the issue saw
+    ts = log.column("Ts[K]")
+    written = ~np.isnan(ts)
+    assert 0.7 < written.mean() < 1.0
+    assert (ts[written] > T / 2).all() and (ts[written] < 2 * T).all(), (
+        ts[written].min(), ts[written].max())
+    window_n = np.array([num[max(0, k - W + 1):k + 1].sum() for k in range(len(num))])
+    assert (ts[written] <= np.sqrt(window_n[written]) / (6 * units.kB)).all()
+    # and the run's ratio of averages is T
+    assert abs(num.sum() / (units.kB * den.sum()) - T) < 0.1 * T
+
+
+def test_spin_temperature_with_anisotropy_takes_its_curvature():
+    """Independent spins in a uniaxial anisotropy (K/k_B T = 2, easy axis; −1.5,
+    easy plane): ⟨N⟩/⟨D⟩ = k_B T only with D = ∇²E, which for a field that
+    depends on its own spin is 2 s·B less Σ_t t·∂B/∂s t; Nurdin's 2 Σ s·B
+    alone is off by far more than the standard error."""
+    T = 30.0
+    kT = units.kB * T
+    per = 128
+    ratios = np.array([2.0, -1.5])
+    atoms = gas(np.ones(2 * per), seed=3)
+    atoms.numbers[per:] = 2
+    atoms.calc = SpinLatticeCalculator([UniaxialAnisotropy(
+        {"H": ratios[0] * kT, "He": ratios[1] * kT}, [0.0, 0.6, 0.8])])
+    omega = 2.0 * float(np.abs(ratios).max() * kT) / HBAR
+    dyn = Langevin(atoms, 0.1 / omega, T, spin_damping=1.0, friction=0.0,
+                   lattice="frozen", rng=5)
+    dyn.run(500)
+    log = SumsLog(dyn)
+    dyn.attach(log, interval=5)
+    dyn.run(3000)
+    num, den = np.array(log.sums).T
+    ratio = (num.reshape(20, -1).sum(axis=1) / den.reshape(20, -1).sum(axis=1)) / units.kB
+    mean, se = ratio.mean(), ratio.std(ddof=1) / np.sqrt(20)
+    assert se < 0.02 * T and abs(mean - T) < Z * se, (mean, se)
+    wrong = num.sum() / (units.kB * np.sum(log.nurdin))
+    assert abs(wrong - T) > max(0.1 * T, 10 * se), (wrong, se)
 
 
 def test_relax_spins_finds_the_ferromagnet():

@@ -1,6 +1,7 @@
 """CollectivePRK: convergence to the ODE solution, invariants, ASE integration, errors."""
 
 import io
+import re
 
 import numpy as np
 import pytest
@@ -242,13 +243,28 @@ def test_log_lines():
     assert lines[0].split() == ["Time[ps]", "Etot[eV]", "Epot[eV]", "Ekin[eV]", "Emag[eV]",
                                 "T[K]", "|M|", "Ts[K]", "iter"]
     assert len(lines) == 1 + 3  # steps 0, 2, 4
+    # every column ends under the end of its header name
+    ends = [m.end() for m in re.finditer(r"\S+", lines[0])]
+    for line in lines[1:]:
+        assert [m.end() for m in re.finditer(r"\S+", line)][1:] == ends[1:]
     last = [float(x) for x in lines[-1].split()]
     assert np.isclose(last[0], 0.004)
-    assert np.isclose(last[2], atoms.get_potential_energy(), atol=1e-3)
-    assert np.isclose(last[4], atoms.calc.results["energy_terms"]["exchange"], atol=1e-3)
+    # energies to 1e-9 eV: enough to follow the conservation of Etot
+    assert len(lines[-1].split()[1].split(".")[1]) == 9
+    assert abs(last[2] - atoms.get_potential_energy()) < 6e-10
+    assert abs(last[1] - dyn.get_total_energy()) < 6e-10
+    assert abs(last[4] - atoms.calc.results["energy_terms"]["exchange"]) < 6e-10
     assert np.isclose(last[6], np.linalg.norm(ase_spin.get_spins(atoms).mean(axis=0)),
                       atol=1e-5)
     assert last[8] == dyn.iterations
+    # Ts: the ratio of the sums N, D averaged over the lines so far (the window)
+    logger = next(f for f, *_ in dyn.observers if isinstance(f, ase_spin.SpinMDLogger))
+    N, D = np.sum(logger.spin_temperature_samples, axis=0)
+    assert len(logger.spin_temperature_samples) == 3
+    assert abs(last[7] - N / (units.kB * D)) < 0.06
+    for bad in (0, 2.5, True, "10"):
+        with pytest.raises(ValueError, match="spin_temperature_window"):
+            ase_spin.SpinMDLogger(dyn, io.StringIO(), spin_temperature_window=bad)
 
 
 def test_trajectory_restart_reproduces_uninterrupted_run(tmp_path):

@@ -203,3 +203,49 @@ def test_spin_operators_declare_exactly_the_capabilities_they_provide():
             has = [callable(getattr(cls, m, None)) for m in methods]
             assert all(has) == bool(getattr(cls, flag)), (cls.__name__, flag)
             assert all(has) or not any(has), (cls.__name__, flag)
+
+
+def _laplacian_on_spheres(ev, q, s, angle=5e-4):
+    """Σ_i ∇²_i E by finite differences: for each spin, the second derivatives
+    of E along two orthogonal great circles through it (geodesic coordinates:
+    their sum is the Laplace–Beltrami operator)."""
+    from ase_spin.terms.base import tangent_directions
+
+    def energy(spins):
+        return ev.evaluate(q, spins, Want(energy=True)).energy
+
+    e0 = energy(s)
+    total = 0.0
+    for t in tangent_directions(s):
+        for i in range(len(s)):
+            if not s[i].any():
+                continue
+            e = []
+            for a in (angle, -angle):
+                w = s.copy()
+                w[i] = np.cos(a) * s[i] + np.sin(a) * t[i]
+                e.append(energy(w))
+            total += (e[0] + e[1] - 2.0 * e0) / angle**2
+    return total
+
+
+@pytest.mark.parametrize("scene", ["tiny2", "triclinic"])
+@pytest.mark.parametrize("make", [t[1] for t in TERMS], ids=IDS)
+def test_self_curvature_completes_the_laplacian(make, scene, rng):
+    """The spin temperature's denominator: Σ_i ∇²_i E on the spheres equals
+    2 Σ s_i·B_i − Σ ``self_curvature`` of the operators (full and half pair
+    lists; tiny2: atoms see their own images), at the scene's spins and at
+    random ones."""
+    term = make()
+    if not term.spin_dependent:
+        return
+    atoms = STRUCTURES[scene]
+    ev = bound(term, atoms)
+    q = atoms.positions
+    for s in (spins_of(atoms), random_spins(len(atoms), rng)):
+        B = ev.evaluate(q, s, Want(magnetic_forces=True)).magnetic_forces
+        expected = _laplacian_on_spheres(ev, q, s)
+        for half in (False, True):
+            ops = ev.spin_operators(q, half=half)
+            got = 2.0 * np.einsum("ij,ij->", s, B) - sum(op.self_curvature(s) for op in ops)
+            assert got == pytest.approx(expected, rel=1e-5, abs=1e-7), (half, got, expected)

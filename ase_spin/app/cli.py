@@ -48,7 +48,8 @@ from .inputs import (TABLE_KEYS, InputError, InputWarning, build_integrator, bui
                      warn_implausible)
 from .warmup import compile_kernels
 
-__all__ = ["main", "load_input", "build_scene", "plot_log", "InputError"]
+__all__ = ["main", "load_input", "build_scene", "plot_log", "read_log", "log_panels",
+           "InputError"]
 
 # -- run ---------------------------------------------------------------------------
 
@@ -167,9 +168,24 @@ def _fs():
 
 # -- plot ----------------------------------------------------------------------------
 
+#: ASE's MDLogger(stress=True) heads its six stress columns with one banner
+STRESS_COLUMNS = tuple(f"S{c}[GPa]" for c in ("xx", "yy", "zz", "yz", "xz", "xy"))
+
+
+def _header_names(parts):
+    """Column names of a header line: ASE's stress banner ("--- stress [GPa]
+    ---", over six columns) becomes :data:`STRESS_COLUMNS`."""
+    if "stress" not in parts:
+        return parts
+    names = [p for p in parts if p not in ("stress", "[GPa]") and p.strip("-")]
+    return names + list(STRESS_COLUMNS)
+
+
 def read_log(path):
-    """The columns of an integrator's log (SpinMDLogger, or ASE's MDLogger) as
-    {header name: array}; repeated headers (runs appended to one log) skipped."""
+    """The columns of an integrator's log (SpinMDLogger, LangevinLogger, or ASE's
+    MDLogger, per atom or not, with stress or not) as {header name: array};
+    repeated headers (runs appended to one log) skipped. A value written as
+    ``nan`` (Ts where it cannot be told) is NaN."""
     header = None
     rows = []
     with open(path) as fd:
@@ -181,7 +197,7 @@ def read_log(path):
                 values = [float(x) for x in parts]
             except ValueError:
                 if header is None:
-                    header = parts
+                    header = _header_names(parts)
                 continue
             if header is not None and len(values) == len(header):
                 rows.append(values)
@@ -192,9 +208,44 @@ def read_log(path):
     return {name: data[:, k] for k, name in enumerate(header)}
 
 
+def _energy_columns(columns, names):
+    """The energy columns of ``names`` present in the log, total ("Etot[eV]")
+    or per atom ("Etot/N[eV]", ASE's MDLogger(peratom=True)), and the unit."""
+    total = [f"{n}[eV]" for n in names if f"{n}[eV]" in columns]
+    if total:
+        return total, "eV"
+    return [f"{n}/N[eV]" for n in names if f"{n}/N[eV]" in columns], "eV/atom"
+
+
+def log_panels(columns):
+    """The panels :func:`plot_log` draws for a log's ``columns``, in order:
+    (y label, column names, unit of the energies drawn less their first
+    value or None for values drawn as they are); the panels without columns
+    left out. A Langevin log has two of its own: Etot with the bath's Ebath
+    (on one scale: the energy the baths put in), and the conserved
+    Econs = Etot − Ebath on its own scale (its drift is the run's check)."""
+    energies, unit = _energy_columns(columns, ("Etot", "Epot", "Ekin", "Emag"))
+    bath, bath_unit = _energy_columns(columns, ("Etot", "Ebath"))
+    if not any(name.startswith("Ebath") for name in bath):
+        bath = []
+    conserved, conserved_unit = _energy_columns(columns, ("Econs",))
+    panels = [(f"energy ({unit})", energies, unit),
+              (f"bath ({bath_unit})", bath, bath_unit),
+              (f"Econs ({conserved_unit})", conserved, conserved_unit),
+              ("temperature (K)", [c for c in ("T[K]", "Ts[K]") if c in columns], None),
+              ("|M| (mean unit spin)", [c for c in ("|M|",) if c in columns], None),
+              ("stress (GPa)", [c for c in STRESS_COLUMNS if c in columns], None)]
+    return [p for p in panels if p[1]]
+
+
 def plot_log(path, output=None):
-    """``ase-spin plot``: energies, temperatures and |M| against time from a log,
-    as a PNG (default: the log's name with .png). Returns the PNG's path."""
+    """``ase-spin plot``: against time, from a log, as a PNG (default: the
+    log's name with .png); returns the PNG's path. Panels, where the log has
+    their columns: the energies (Etot, Epot, Ekin, Emag; total or per atom)
+    less their first values; a Langevin run's Etot and Ebath, and its
+    conserved Econs = Etot − Ebath on a scale of its own with its largest
+    change (the check of a thermostatted run), less their first values;
+    temperatures T and Ts; |M|; ASE's stress columns (:func:`log_panels`)."""
     try:
         from matplotlib.figure import Figure
     except ImportError:
@@ -207,19 +258,20 @@ def plot_log(path, output=None):
     if "Time[ps]" not in columns:
         raise InputError(f"{str(path)!r} has no Time[ps] column: not an MD log")
     t = columns["Time[ps]"]
-    panels = [("energy − its first value (eV)",
-               [c for c in ("Etot[eV]", "Epot[eV]", "Ekin[eV]", "Emag[eV]") if c in columns],
-               True),
-              ("temperature (K)", [c for c in ("T[K]", "Ts[K]") if c in columns], False),
-              ("|M| (mean unit spin)", [c for c in ("|M|",) if c in columns], False)]
-    panels = [p for p in panels if p[1]]
+    panels = log_panels(columns)
     fig = Figure(figsize=(7, 2.4 * len(panels)))
     axes = fig.subplots(len(panels), 1, sharex=True, squeeze=False)[:, 0]
     for ax, (label, names, relative) in zip(axes, panels):
         for name in names:
             y = columns[name]
             if relative:
-                ax.plot(t, y - y[0], label=f"{name[:-4]} ({y[0]:.6g} eV at start)")
+                short = name[:name.index("[")]
+                text = f"{short} ({y[0]:.10g} {relative} at start)"
+                if short.startswith("Econs"):
+                    drift = float(np.nanmax(np.abs(y - y[0])))
+                    text = (f"{short} = Etot − Ebath, less its first value {y[0]:.10g} "
+                            f"(largest change {drift:.3g} {relative})")
+                ax.plot(t, y - y[0], label=text)
             else:
                 ax.plot(t, y, label=name)
         ax.set_ylabel(label)
@@ -249,8 +301,10 @@ def _parser():
                    help="replace existing output files")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     p = sub.add_parser("plot", parents=[common],
-                       help="plot energies, temperatures and |M| of a log")
-    p.add_argument("log", help="log file written by an ase_spin integrator")
+                       help="plot energies (and a Langevin run's Ebath, Econs), "
+                       "temperatures and |M| of a log")
+    p.add_argument("log", help="log file written by an ase_spin integrator, or by ASE's "
+                   "MDLogger")
     p.add_argument("-o", "--output", help="PNG to write (default: LOG with .png)")
     c = sub.add_parser("compile", parents=[common],
                        help="compile the numba kernels ahead of time (into "

@@ -98,6 +98,7 @@ def _exercise(atoms, dyn):
         # log line): it asks the spin operators for the energy and the virial
         dyn.attach(lambda: None, interval=1)
         dyn.run(1)
+        dyn.get_spin_temperature_sums()  # the log line's Ts (the terms' self_curvature)
 
 
 def _builtin(task):

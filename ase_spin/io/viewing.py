@@ -16,6 +16,9 @@ extxyz column   OVITO property          what it holds
 ``spin_z``      spin_z (user)           z component of s_i
 ==============  ======================  =====================================
 
+and, for a frame written during a run (whose ``info`` holds them), the
+magnetic forces B_i (eV) as the column ``magnetic_forces`` (user property).
+
 ``spin_angle`` and ``spin_z`` are scalars, so ``ase gui`` lists them under
 View → Colors ("By user-defined ...") too: that is how to see s_z of a film
 from above, where the arrows of spins along the normal have no length.
@@ -154,6 +157,11 @@ def ovito_frame(atoms, color_by="angle"):
     frame.arrays["vector_color"] = rgb.copy()
     frame.arrays["spin_angle"] = np.nan_to_num(spin_angles(spins), nan=0.0)
     frame.arrays["spin_z"] = spins[:, 2].copy()
+    # the magnetic forces of a frame written during a run (or read from a
+    # .traj) as a column, not as N × 3 numbers in the comment line
+    B = frame.info.pop("magnetic_forces", None)
+    if B is not None and np.shape(B) == (len(frame), 3):
+        frame.arrays["magnetic_forces"] = np.array(B, dtype=float)
     M = magnetization(spins)
     frame.info["magnetization"] = M
     frame.info["abs_magnetization"] = float(np.linalg.norm(M))
@@ -181,10 +189,10 @@ def write_ovito_xyz(path, frames, color_by="angle", append=False):
 
     Each frame gets the columns of the module table (``dipoles`` = s_i,
     ``dipoles_mag`` = μ_i, ``color``, ``vector_color``, ``spin_angle``,
-    ``spin_z``), the magnetisation M and |M| in its comment line, and the
-    energy, forces and stress if the frame's calculator holds them for this
-    state. The frames given are not changed. Returns the number of frames
-    written.
+    ``spin_z``; ``magnetic_forces`` where the frame's ``info`` holds them),
+    the magnetisation M and |M| in its comment line, and the energy, forces
+    and stress if the frame's calculator holds them for this state. The
+    frames given are not changed. Returns the number of frames written.
     """
     from ase.io import write
 

@@ -10,6 +10,8 @@ through ``self._sync()``).
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import numpy as np
 from ase import units
 
@@ -20,6 +22,9 @@ from .logger import SpinMDLogger
 __all__ = ["Observables"]
 
 _FORCES = Want(forces=True)
+#: results a frame carries in ``atoms.info`` (no calculator field for them)
+_FRAME_INFO = ("magnetic_forces", "magnetic_energy", "energy_terms")
+_ABSENT = object()
 
 
 class Observables:
@@ -84,21 +89,60 @@ class Observables:
         n = int(self.ev.magnetic.sum())
         return st.s.sum(axis=0) / n if n else np.zeros(3)
 
+    def get_spin_temperature_sums(self):
+        r"""The two sums of the spin temperature at the current state,
+        (N, D) with k_B T_s = ⟨N⟩/⟨D⟩ in equilibrium:
+
+        .. math:: N = \sum_i |\mathbf s_i \times \mathbf B_i|^2 \;(\mathrm{eV}^2),
+                  \qquad D = \nabla^2 E = \sum_i \Big(2\,\mathbf s_i\cdot\mathbf B_i
+                  - \sum_{\mathbf t \perp \mathbf s_i}
+                    \mathbf t\cdot\frac{\partial \mathbf B_i}{\partial \mathbf s_i}
+                    \mathbf t\Big) \;(\mathrm{eV}),
+
+        N = |∇E|² and D = ∇²E on the product of the spheres: the configurational
+        temperature's identity ⟨|∇E|²⟩ = k_B T ⟨∇²E⟩ of the Boltzmann
+        distribution. The second part of D (a spin's field depending on that
+        spin: anisotropies, biquadratic exchange; zero for exchange, DMI,
+        fields) is each operator's ``self_curvature``; without it D is twice
+        Σ s·B, Nurdin's and LAMMPS ``compute spin``'s denominator. (0, 0)
+        without magnetic atoms.
+
+        The identity holds for averages: D has no sign, and its mean goes to
+        zero as T grows (on a sphere ∇²E averages to zero at infinite T), so
+        one sample's N/(k_B D) is no temperature above T_C. Average N and D
+        apart over a run and divide (the log's Ts column does so over its
+        last lines: :class:`~ase_spin.md.logger.SpinMDLogger`)."""
+        obs = self._observables()
+        if not self.magnetic:
+            return 0.0, 0.0
+        if "spin_temperature_sums" not in obs:
+            st = self._sync()
+            B = obs["B"]
+            num = float((np.cross(st.s, B) ** 2).sum())
+            curvature = sum(op.self_curvature(st.s) for op in st.ops)
+            den = 2.0 * float(np.einsum("ij,ij->", st.s, B)) - curvature
+            obs["spin_temperature_sums"] = (num, den)
+        return obs["spin_temperature_sums"]
+
     def get_spin_temperature(self):
-        r"""The spin temperature of LAMMPS ``compute spin`` (Nurdin et al.):
+        r"""One sample of the configurational spin temperature,
+        T_s = N/(k_B D) with N and D of :meth:`get_spin_temperature_sums`;
+        for terms linear in each spin (exchange, DMI, fields) that is LAMMPS
+        ``compute spin``'s estimator (Nurdin et al.)
 
         .. math:: T_s = \frac{\sum_i |\mathbf s_i \times \mathbf B_i|^2}
                              {2 k_B \sum_i \mathbf s_i\cdot\mathbf B_i}
 
-        (LAMMPS writes it with ω = B/ħ and a factor ħ). NaN without magnetic atoms.
+        (LAMMPS writes it with ω = B/ħ and a factor ħ). A single sample means
+        something only while D is far from zero against its fluctuations
+        (below T_C, or many spins): above T_C it can be any number of either
+        sign; average N and D apart instead (the log's Ts). NaN without
+        magnetic atoms or where D = 0.
         """
-        st = self._sync()
-        B = self._observables()["B"]
-        den = float(np.einsum("ij,ij->", st.s, B))
+        num, den = self.get_spin_temperature_sums()
         if not self.magnetic or den == 0.0:
             return float("nan")
-        num = float((np.cross(st.s, B) ** 2).sum())
-        return num / (2.0 * units.kB * den)
+        return num / (units.kB * den)
 
     def get_temperature(self):
         dof = len(self.atoms) * 3
@@ -111,12 +155,18 @@ class Observables:
     def call_observers(self):
         """ASE's, with the calculator's results for the current state published
         first (:meth:`publish_results`) when an observer other than the log line
-        is due: trajectory frames (and a user's ``ase.io.write`` in an observer)
-        then hold energy, forces, stress, magnetic forces; on the other steps
-        nothing is computed."""
-        if self._frame_due(self.nsteps):
-            self.publish_results()
-        super().call_observers()
+        is due, and what a frame has no calculator field for put in
+        ``atoms.info`` while the observers run (:meth:`_frame_info`): frames
+        written by the integrator's ``trajectory=``, by an attached
+        ``Trajectory(...).write`` or by a user's ``ase.io.write`` then all hold
+        energy, forces, stress, magnetic forces. On the other steps nothing
+        is computed."""
+        if not self._frame_due(self.nsteps):
+            super().call_observers()
+            return
+        self.publish_results()
+        with self._frame_info():
+            super().call_observers()
 
     def publish_results(self):
         """Put the results of the current state into ``atoms.calc`` as if it had
@@ -163,22 +213,32 @@ class Observables:
             results["stress"] = V / abs(np.linalg.det(self.atoms.cell.array))
         return results
 
-    def _traj_write_image(self, description):
-        """ASE's trajectory writer, with what a .traj frame has no field for in
-        the frame's ``info``: ``magnetic_forces`` (N, 3), ``magnetic_energy``,
-        ``energy_terms`` (the user's Atoms keep their own info)."""
+    @contextmanager
+    def _frame_info(self):
+        """``magnetic_forces`` (N, 3), ``magnetic_energy`` and ``energy_terms``
+        of the published results in ``atoms.info`` for the duration of the
+        block (ASE's .traj stores a fixed list of calculator properties, none
+        of them a magnetic force; extxyz writes info in the comment line).
+        Afterwards each key is as it was, unless an observer set it to a
+        value of its own: the user's Atoms keep their own info."""
         calc = self._calc
-        current = not calc.check_state(self.atoms)
         info = self.atoms.info
-        saved = dict(info)
-        for key in ("magnetic_forces", "magnetic_energy", "energy_terms"):
-            if current and key in calc.results:
-                info[key] = calc.results[key]
+        put = {}
+        if not calc.check_state(self.atoms):
+            for key in _FRAME_INFO:
+                if key in calc.results:
+                    put[key] = (calc.results[key], info.get(key, _ABSENT))
+                    info[key] = calc.results[key]
         try:
-            super()._traj_write_image(description)
+            yield
         finally:
-            info.clear()
-            info.update(saved)
+            for key, (value, before) in put.items():
+                if info.get(key, _ABSENT) is not value:
+                    continue  # an observer's own value
+                if before is _ABSENT:
+                    del info[key]
+                else:
+                    info[key] = before
 
     def _observer_due(self, n, frames_only=False):
         for function, interval, _, _ in self.observers:

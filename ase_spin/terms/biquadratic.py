@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import numba as nb
+import numpy as np
 
 from ..neighbors import separation
 from ..validate import flag
-from .base import PairSpinTerm
+from .base import PairOperator, PairSpinTerm
 from .couplings import BetheSlater
 from .exchange import NO_ROWS, Exchange, copy_positions
 from .lammps_form import LammpsPair, number_text
@@ -70,6 +71,42 @@ def _site(i, s, data):
         by += c * s[j, 1]
         bz += c * s[j, 2]
     return bx, by, bz
+
+
+@nb.njit(cache=True)
+def _self_curvature(row, nbr, J, K, W):
+    """Σ_i Σ_t t·(∂B_i/∂s_i) t of the fields the pairs k = (i → j) of a list
+    put on their atom i (see :meth:`BiquadraticOperator.self_curvature`)."""
+    total = 0.0
+    for i in range(len(row) - 1):
+        li = W[i, 0] * W[i, 0] + W[i, 1] * W[i, 1] + W[i, 2] * W[i, 2]
+        for k in range(row[i], row[i + 1]):
+            j = nbr[k]
+            if j == i:
+                total += 2.0 * (J[k] + 2.0 * K[k]) * li
+            else:
+                lj = W[j, 0] * W[j, 0] + W[j, 1] * W[j, 1] + W[j, 2] * W[j, 2]
+                w = W[i, 0] * W[j, 0] + W[i, 1] * W[j, 1] + W[i, 2] * W[j, 2]
+                total += 2.0 * K[k] * (li * lj - w * w)
+    return total
+
+
+class BiquadraticOperator(PairOperator):
+    """The biquadratic exchange's :class:`PairOperator`, with the dependence
+    of each spin's field on that spin (:meth:`self_curvature`)."""
+
+    __slots__ = ()
+
+    def self_curvature(self, W):
+        r"""Σ_i Σ_t t·(∂B_i/∂s_i) t: each pair's field on i, [J + 2K (s_i·s_j)] s_j,
+        gives ∂B_i/∂s_i = 2K s_j s_jᵀ, whose trace over the two directions
+        t ⊥ s_i is 2K (|s_i|²|s_j|² − (s_i·s_j)²); a pair of an atom with its
+        own image (s_j = s_i), 2 (J + 2K)|s_i|². A half list's pair puts a
+        field on both of its atoms, with the same value: twice the sum."""
+        p = self.pairs
+        total = _self_curvature(p.row, p.j, self.data[0], self.data[1],
+                                np.ascontiguousarray(W))
+        return (2.0 if p.half else 1.0) * total
 
 
 class BiquadraticExchange(PairSpinTerm):
@@ -138,6 +175,10 @@ class BiquadraticExchange(PairSpinTerm):
             coeffs.append((i, j, f"biquadratic {number_text(self.rc)} {' '.join(args)}"
                            + (" offset yes" if self.offset else "")))
         return [LammpsPair("spin/exchange/biquadratic", number_text(self.rc), coeffs)]
+
+    def operator(self, pairs, data, mean_data):
+        return BiquadraticOperator(pairs, data, mean_data, self._compiled_pass(),
+                                   type(self).pair_site)
 
     def _parts(self):
         """J and K each as an exchange term: their tables and pair geometry."""

@@ -118,6 +118,15 @@ class ExchangeOperator(SpinOperator):
         J = self.Jbar if mean else self.J
         _field(self.pairs, J, W, out)
 
+    def self_curvature(self, W):
+        """:meth:`SpinOperator.self_curvature`: B_i = Σ_j J_ij s_j depends on s_i
+        only through pairs of an atom with its own periodic image (a cell
+        narrower than the cutoff): Σ over them of 2 J (twice on a half list,
+        whose pair adds to both ends)."""
+        p = self.pairs
+        return (2.0 if p.half else 1.0) * _own_image_trace(p.row, p.j, self.J,
+                                                           np.ascontiguousarray(W))
+
     def add(self, W, want, magnetic_forces, forces, energies):
         """Add B_i = Σ_j J_ij s_j, the exchange forces and energies for spins W
         (and the virial, from the d_ij recomputed at ``pos``).
@@ -202,6 +211,20 @@ def add_kept(keep, base, out):
     (threads in order: the rounding of a pass's own reduction onto ``base``)."""
     add_kept_pass(keep, base, out)
     return out
+
+
+@nb.njit(cache=True)
+def _own_image_trace(row, nbr, c, W):
+    """Σ_t t·(∂B_i/∂s_i) t over the pairs k = (i → i) of an atom with its own
+    image, for a field B_i ∋ c_k s_i from each: 2 c_k |s_i|² (the trace of
+    c_k I over the two directions t ⊥ s_i). One pass, nothing allocated."""
+    total = 0.0
+    for i in range(len(row) - 1):
+        for k in range(row[i], row[i + 1]):
+            if nbr[k] == i:
+                total += 2.0 * c[k] * (W[i, 0] * W[i, 0] + W[i, 1] * W[i, 1]
+                                       + W[i, 2] * W[i, 2])
+    return total
 
 
 def _field(pairs, J, W, out):
