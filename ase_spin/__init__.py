@@ -17,11 +17,13 @@ from .terms import (DMI, EAM, BetheSlater, BiquadraticExchange, CalculatorTerm, 
                     CubicAnisotropy, Exchange, LennardJones, ShellExchange, Tabulated, Term,
                     UniaxialAnisotropy, Zeeman)
 from .terms.base import Want
+from .validate import ImplausibleParameterWarning
 
 __version__ = "0.1.0"
 
 __all__ = [
     "SpinLatticeCalculator", "Hamiltonian", "Evaluator", "Want", "AtomsTooCloseError",
+    "ImplausibleParameterWarning",
     "set_spins", "get_spins", "get_moments",
     "CollectivePRK", "SuzukiTrotter", "SpinLatticeDynamics", "IntegrationError",
     "SpinConvergenceError", "UnstableStepError", "Langevin", "relax_spins", "SpinMDLogger", "HBAR", "HBAR_LAMMPS", "MU_B", "MU_B_LAMMPS", "G_ELECTRON",

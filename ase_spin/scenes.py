@@ -3,6 +3,8 @@ comparison, as ready-to-run ASE Atoms (calculator and spins attached)."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from ase import Atoms
 from ase.build import bulk
@@ -11,6 +13,7 @@ from .calculator import SpinLatticeCalculator
 from .spins import set_spins
 from .constants import MU_B_LAMMPS
 from .terms import BetheSlater, Cubic, Exchange, LennardJones, UniaxialAnisotropy, Zeeman
+from .validate import ImplausibleParameterWarning
 
 __all__ = ["paper_chain", "paper_chain_terms", "fcc_cobalt", "fcc_cobalt_terms", "cone",
            "field_anisotropy_terms", "FIELD_ANISOTROPY_LAMMPS"]
@@ -20,9 +23,12 @@ def paper_chain_terms():
     """The paper's Hamiltonian in this package's conventions (docs/conventions.md):
     LJ with ε = U0 = 1 eV, σ = r_m 2^(−1/6) Å, plain cutoff 1.9 Å (nearest
     neighbours only); H_m = +Σ J0 (1 − r/rc)³ w_i·w_{i+1} with J0 = 10 is the
-    cubic exchange with J0 = −10 in E = −Σ J s_i·s_j."""
-    return [LennardJones(epsilon=1.0, sigma=2.0 ** (-1.0 / 6.0), rc=1.9),
-            Exchange(Cubic(J0=-10.0, rc=1.5))]
+    cubic exchange with J0 = −10 in E = −Σ J s_i·s_j. (The paper's reduced
+    units: its J0 = 10 is no slip of units, so no ImplausibleParameterWarning.)"""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ImplausibleParameterWarning)
+        coupling = Cubic(J0=-10.0, rc=1.5)
+    return [LennardJones(epsilon=1.0, sigma=2.0 ** (-1.0 / 6.0), rc=1.9), Exchange(coupling)]
 
 
 def paper_chain(n=30):

@@ -9,12 +9,16 @@ or failing deep inside numpy or numba.
 
 from __future__ import annotations
 
+import difflib
 import numbers
+import warnings
 
 import numpy as np
 
 __all__ = ["real_array", "real_scalar", "positive_scalar", "length", "flag", "integer",
-           "robust_norm"]
+           "robust_norm", "ImplausibleParameterWarning", "warn_implausible", "REQUIRED",
+           "unknown_keywords", "MAX_FIELD_T", "MAX_SITE_ENERGY", "MAX_COUPLING",
+           "MIN_DISTANCE"]
 
 #: Lengths (Å) a parameter may take: squares and inverse squares stay finite.
 LENGTH_RANGE = (1e-100, 1e100)
@@ -138,3 +142,94 @@ def unit_vector(value, what):
     v = v / np.sqrt(v @ v)
     v.setflags(write=False)
     return v
+
+
+# -- values that run but are almost surely not meant --------------------------------
+
+class ImplausibleParameterWarning(UserWarning):
+    """A value that is valid but far outside anything physical, most likely a
+    slip of units: a field in Oe given as tesla, an energy in meV given as eV,
+    positions in other units than Å (docs/errors.md). Raised where the value
+    enters (the term's constructor, the first neighbour list of a structure);
+    the run goes on."""
+
+
+#: Zeeman fields (T) above this warn: the strongest laboratory fields are ~100 T
+#: (pulsed), and 10⁴ T is a field in Oe or G typed as tesla (1 T = 10⁴ Oe).
+MAX_FIELD_T = 1000.0
+#: Single-site (anisotropy) energies (eV per atom) above this warn: magnetocrystalline
+#: anisotropies are μeV to a few meV per atom.
+MAX_SITE_ENERGY = 1.0
+#: Pair couplings (exchange J, DMI D; eV per pair) above this warn: exchange is
+#: meV to ~0.1 eV per pair.
+MAX_COUPLING = 1.0
+#: Pairs of atoms closer than this (Å) when a structure is first seen warn.
+MIN_DISTANCE = 0.5
+
+_UNIT_SLIPS = {
+    "field": "a field in Oe or G given as tesla? 1 T = 10⁴ Oe = 10⁴ G; fields are in tesla",
+    "energy": "a value in meV given as eV? ase_spin takes energies in eV",
+}
+
+
+def warn_implausible(value, limit, what, unit, typical, slip, stacklevel=3):
+    """Warn (:class:`ImplausibleParameterWarning`) if |value| > ``limit``:
+    ``what = value unit: above limit unit, typical; slip``. ``value`` may be a
+    number or a mapping of them (per species or pair: the largest is named).
+    ``slip``: a key of the unit-slip hints or a phrase."""
+    values = value.values() if hasattr(value, "values") else (value,)
+    worst = max((abs(float(v)) for v in values if v is not None), default=0.0)
+    if not worst > limit:
+        return
+    hint = _UNIT_SLIPS.get(slip, slip)
+    warnings.warn(ImplausibleParameterWarning(
+        f"{what} = {worst:.4g} {unit}: above {limit:g} {unit}, implausible ({typical}); "
+        f"{hint}"), stacklevel=stacklevel)
+
+
+# -- keywords ---------------------------------------------------------------------
+
+class _Required:
+    """The default of a keyword a function needs but checks itself, so that it
+    can first refuse unknown keywords (see :func:`unknown_keywords`)."""
+
+    def __repr__(self):
+        return "<required>"
+
+    def __reduce__(self):
+        return "REQUIRED"
+
+
+#: Default of a required keyword (a function checks for it itself, after the
+#: unknown keywords): shown as ``<required>`` in signatures; the command
+#: line's input checks count it as required.
+REQUIRED = _Required()
+
+
+def unknown_keywords(owner, given, accepted, hints=None):
+    """TypeError naming the keywords of ``given`` that ``owner`` (a name) does
+    not take, or None when all are known (the caller raises it). Each comes
+    with the accepted one most likely meant: from ``hints`` (slip -> (keyword
+    meant, why, what to say when ``owner`` does not take that keyword either)),
+    else the closest accepted name."""
+    unknown = [k for k in given if k not in accepted]
+    if not unknown:
+        return None
+    hints = hints or {}
+    problems = []
+    for k in unknown:
+        text = f"unknown keyword {k!r}"
+        meant, why, otherwise = hints.get(k, (None, "", ""))
+        if meant is not None and meant not in accepted:
+            meant, why = None, ""
+            if otherwise:
+                text += f" ({otherwise})"
+        if meant is None and not otherwise:
+            close = difflib.get_close_matches(str(k), sorted(accepted), n=1, cutoff=0.6)
+            meant = close[0] if close else None
+        if meant is not None:
+            text += f"; did you mean {meant}?"
+            if why:
+                text += f" ({why})"
+        problems.append(text)
+    return TypeError(f"{owner}: {'; '.join(problems)}")

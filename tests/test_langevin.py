@@ -579,6 +579,69 @@ def test_relax_spins_finds_the_ferromagnet():
     assert np.array_equal(a.get_initial_magnetic_moments(), before)
 
 
+def _torque(atoms):
+    B = atoms.calc.get_property("magnetic_forces", atoms)
+    return np.linalg.norm(np.cross(ase_spin.get_spins(atoms), B), axis=1).max()
+
+
+def test_relax_spins_warns_about_no_timestep_it_chose():
+    """Its own timestep (0.2 rad per step for the fastest spin) draws no
+    TimestepWarning (its probe used to warn about a timestep of 1 ASE unit);
+    the count is the step of the first passing check (1, 2, 4, ..., 32, then
+    multiples of 32), where the torque is within fmax."""
+    from ase_spin.md.errors import TimestepWarning
+    from ase_spin.md.langevin import RELAX_CHECK
+
+    import warnings
+    atoms = fcc_cobalt(2, temperature_K=0.0, cone_deg=90.0,
+                       extra=[UniaxialAnisotropy(0.01, [1.0, 0.0, 0.0])])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", TimestepWarning)
+        n = relax_spins(atoms, fmax=1e-7)
+    assert n in (1, 2, 4, 8, 16) or n % RELAX_CHECK == 0, n
+    assert 0 < n < 5000
+    assert _torque(atoms) <= 1e-7
+    assert relax_spins(atoms, fmax=1e-7) == 0  # relaxed already: no step
+    # a timestep given is checked as any integrator's
+    b = fcc_cobalt(2, temperature_K=0.0, cone_deg=60.0)
+    with pytest.warns(TimestepWarning, match="precesses"):
+        relax_spins(b, fmax=1e-4, timestep=8 * units.fs, solver="anderson")
+
+
+def test_relax_spins_steps_cost_what_langevin_steps_cost(monkeypatch):
+    """No full evaluation per step: the passes over the spin terms of a
+    relaxation are those of a Langevin run of as many steps (its steps in
+    blocks), plus two per torque check (the block's last closing bath, not
+    merged with the next opening one: its fields before and after, the latter
+    what the check reads) and one at the start."""
+    from ase_spin.hamiltonian import Evaluator
+    from ase_spin.md.baths import BathHalfSteps
+
+    counts = {"evaluate": 0, "fields": 0}
+    evaluate, fields = Evaluator.evaluate, BathHalfSteps._spin_energy_fields
+
+    def counting_evaluate(self, *args, **kwargs):
+        counts["evaluate"] += 1
+        return evaluate(self, *args, **kwargs)
+
+    def counting_fields(self, *args, **kwargs):
+        counts["fields"] += 1
+        return fields(self, *args, **kwargs)
+
+    monkeypatch.setattr(Evaluator, "evaluate", counting_evaluate)
+    monkeypatch.setattr(BathHalfSteps, "_spin_energy_fields", counting_fields)
+    atoms = fcc_cobalt(2, temperature_K=0.0, cone_deg=60.0)
+    n = relax_spins(atoms, fmax=1e-6)
+    relax = dict(counts)
+    checks = sum(1 for k in range(1, n + 1) if k in (1, 2, 4, 8, 16) or k % 32 == 0)
+    counts.update(evaluate=0, fields=0)
+    b = fcc_cobalt(2, temperature_K=0.0, cone_deg=60.0)
+    dyn = Langevin(b, 0.1 * units.fs, 0.0, spin_damping=1.0, friction=0.0, lattice="frozen")
+    dyn.run(n)
+    assert relax["evaluate"] == 0  # (a Langevin's set-up takes one: its timestep check)
+    assert relax["fields"] <= counts["fields"] + 2 * checks + 1, (relax, counts, n, checks)
+
+
 @pytest.mark.parametrize("kwargs, match", [
     (dict(spin_damping=-0.1, friction=0.0), "spin_damping"),
     (dict(spin_damping=0.1, friction=-1.0), "friction"),

@@ -43,6 +43,7 @@ import numpy as np
 from ..io.viewing import ovito_frame, write_ovito_xyz
 from ..md import IntegrationError
 from ..md.errors import TimestepWarning
+from ..validate import ImplausibleParameterWarning
 from .inputs import (TABLE_KEYS, InputError, InputWarning, build_integrator, build_scene,
                      in_folder, in_input_words, load_input, refuse_unknown, take,
                      warn_implausible)
@@ -316,9 +317,10 @@ def _parser():
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
-    """Warnings about the input (the timestep, values of the file) as one line
-    in the input file's terms; others as Python shows them."""
-    if issubclass(category, (InputWarning, TimestepWarning)):
+    """Warnings about the input (the timestep, values of the file, implausible
+    parameters and structures) as one line in the input file's terms; others
+    as Python shows them."""
+    if issubclass(category, (InputWarning, TimestepWarning, ImplausibleParameterWarning)):
         print(f"ase-spin: warning: {in_input_words(message)}", file=sys.stderr, flush=True)
     else:
         _python_show_warning(message, category, filename, lineno, file, line)

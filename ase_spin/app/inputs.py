@@ -36,6 +36,7 @@ from ..md import SpinLatticeDynamics
 from ..md.errors import TimestepWarning
 from ..spins import get_moments, split_moments
 from ..terms import Term
+from ..validate import REQUIRED
 
 __all__ = ["load_input", "check_input", "build_scene", "build_integrator", "in_folder", "make",
            "take", "refuse_unknown", "check_keywords", "check_table", "warn_implausible",
@@ -177,8 +178,10 @@ def _keywords(function):
     except (TypeError, ValueError):
         return None
     keyword = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    # (REQUIRED: a keyword the function checks for itself, after unknown ones)
     required = [p.name for p in own.parameters.values()
-                if p.kind in keyword and p.default is inspect.Parameter.empty]
+                if p.kind in keyword and (p.default is inspect.Parameter.empty
+                                          or p.default is REQUIRED)]
     if inspect.isclass(function):
         inits = [vars(c)["__init__"] for c in function.__mro__
                  if c is not object and "__init__" in vars(c)]

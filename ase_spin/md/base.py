@@ -15,6 +15,8 @@ per-run buffers to the state.
 
 from __future__ import annotations
 
+import functools
+import inspect
 import warnings
 
 import numpy as np
@@ -30,7 +32,7 @@ from ..io.progress import run_with_progress
 from ..io.trajectories import check_trajectory_target
 from ..spins import name_atoms, split_moments
 from ..terms.base import Want
-from ..validate import flag, positive_scalar, real_array, real_scalar
+from ..validate import flag, positive_scalar, real_array, real_scalar, unknown_keywords
 from .compositions import composition_coefficients
 from .errors import TimestepWarning
 from .lattice import LatticeMotion
@@ -38,7 +40,8 @@ from .logger import SpinMDLogger
 from .observables import Observables
 from .state import AtomsBond, State
 
-__all__ = ["SpinLatticeDynamics"]
+__all__ = ["SpinLatticeDynamics", "fastest_precession", "precession_phrase",
+           "accepted_keywords", "KEYWORD_HINTS"]
 
 _FORCES = Want(forces=True)
 
@@ -48,6 +51,70 @@ _FORCES = Want(forces=True)
 MAX_PHASE = 0.3
 #: Smallest plausible timestep (fs) without a warning.
 MIN_TIMESTEP_FS = 1e-3
+
+_IN_KELVIN = "in kelvin, as ASE's Langevin takes it; its deprecated temperature is in eV"
+_NO_BATH = "no heat bath here: ase_spin.Langevin takes {}"
+#: Keywords written by mistake, from ASE's and LAMMPS's names (see
+#: :func:`~ase_spin.validate.unknown_keywords`): slip -> (keyword meant, why,
+#: what to say where the integrator does not take it).
+KEYWORD_HINTS = {
+    "temperature": ("temperature_K", _IN_KELVIN, _NO_BATH.format("temperature_K")),
+    "temp": ("temperature_K", _IN_KELVIN, _NO_BATH.format("temperature_K")),
+    "T": ("temperature_K", _IN_KELVIN, _NO_BATH.format("temperature_K")),
+    "temperature_k": ("temperature_K", _IN_KELVIN, _NO_BATH.format("temperature_K")),
+    "spin_temperature": ("spin_temperature_K", _IN_KELVIN,
+                         _NO_BATH.format("spin_temperature_K")),
+    "damping": ("spin_damping", "λ, the dimensionless Gilbert damping",
+                _NO_BATH.format("spin_damping")),
+    "alpha": ("spin_damping", "λ, the dimensionless Gilbert damping (LAMMPS's alpha_t)",
+              _NO_BATH.format("spin_damping")),
+    "gamma": ("friction", "γ in 1/(ASE time), e.g. 0.01 / ase.units.fs",
+              _NO_BATH.format("friction")),
+    "dt": ("timestep", "in ASE time units: e.g. 0.5 * ase.units.fs", ""),
+    "seed": ("rng", "an integer seed or a numpy Generator", ""),
+    "fix_com": ("fixcm", "", ""),
+}
+
+
+@functools.lru_cache(maxsize=None)
+def accepted_keywords(cls):
+    """The keywords ``cls(...)`` takes: the named parameters of every
+    ``__init__`` up its MRO (each passes ``**kwargs`` on; ASE's
+    MolecularDynamics and Dynamics included)."""
+    keyword = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    names = set()
+    for c in cls.__mro__:
+        init = vars(c).get("__init__")
+        if c is object or init is None:
+            continue
+        try:
+            parameters = inspect.signature(init).parameters.values()
+        except (TypeError, ValueError):
+            continue
+        names.update(p.name for p in parameters if p.kind in keyword)
+    names.discard("self")
+    return frozenset(names)
+
+
+def fastest_precession(rates, B, hbar):
+    """ω_s = max_i r_i |B_i|/ħ: the angular frequency of the fastest spin
+    precession (rad per unit of time of ħ) for precession rate factors
+    ``rates`` (r_i: 1, or g/μ_i; with the Gilbert factor 1/(1+λ²) of a bath)
+    and fields ``B`` (eV). The timestep warning, :class:`SpinConvergenceError`
+    and ``relax_spins``'s timestep all take it from here, so that they speak
+    of one quantity."""
+    if not len(B):
+        return 0.0
+    return float(np.max(rates * np.sqrt(np.einsum("ij,ij->i", B, B)))) / hbar
+
+
+def precession_phrase(h, omega):
+    """How the fastest spin turns in a step h at ω_s (:func:`fastest_precession`):
+    the words of the timestep warning and of :class:`SpinConvergenceError`."""
+    text = f"the fastest spin precesses by {abs(h) * omega:.2g} rad per step"
+    if omega > 0.0:
+        text += f" (period {2 * np.pi / omega / units.fs:.3g} fs)"
+    return text
 
 #: Most steps :meth:`SpinLatticeDynamics.run` takes in one block (small systems,
 #: nothing observing the run in between): an interrupt waits for at most this many.
@@ -84,6 +151,7 @@ class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynami
     def __init__(self, atoms, timestep, *, hbar=None, precession=None,
                  gyromagnetic=None, g=None, order=2, composition=None, lattice="moving",
                  threads=None, trajectory=None, logfile=None, loginterval=1, **kwargs):
+        self._refuse_unknown(kwargs)
         calc = getattr(atoms, "calc", None)
         #: the calculator's conventions, the defaults of ħ, precession, gyromagnetic, g
         self.conventions = (calc.hamiltonian.conventions
@@ -124,6 +192,16 @@ class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynami
         # time = t0 + (nsteps - n0)·dt0: exact nsteps·dt until dt is changed
         self._clock = (0.0, 0, self.dt)
         self._checked_dt = None
+
+    @classmethod
+    def _refuse_unknown(cls, kwargs):
+        """TypeError for keywords no ``__init__`` of the class takes, naming the
+        one most likely meant (:data:`KEYWORD_HINTS`, else the closest name):
+        before anything else is checked, so that ``temperature=300`` is
+        reported as such, not as a missing ``temperature_K``."""
+        error = unknown_keywords(cls.__name__, kwargs, accepted_keywords(cls), KEYWORD_HINTS)
+        if error is not None:
+            raise error
 
     def get_time(self):
         """Simulated time (ASE units), accumulated step by step: changing
@@ -225,14 +303,10 @@ class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynami
         if h < MIN_TIMESTEP_FS * units.fs:
             problems.append(f"it is below {MIN_TIMESTEP_FS} fs")
         if self.magnetic:
-            # one direct pass over the half list: no pair geometry kept for this
-            B = ev.evaluate(q, spins, Want(magnetic_forces=True)).magnetic_forces
-            omega = float(np.max(self._precession_rates(mu) * np.linalg.norm(B, axis=1)))
-            omega /= self.hbar
+            omega = self._fastest_precession(q, spins, mu)
             fastest = max(fastest, omega)
             if h * omega > MAX_PHASE:
-                problems.append(f"the fastest spin precesses by {h * omega:.2g} rad per step "
-                                f"(period {2 * np.pi / omega / units.fs:.3g} fs)")
+                problems.append(precession_phrase(h, omega))
         if not self.frozen and len(q) > 1:
             rng = np.random.default_rng(0)
             d = rng.normal(size=q.shape)
@@ -251,6 +325,12 @@ class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynami
                       "for accurate dynamics")
             warnings.warn(TimestepWarning(self.dt / units.fs, problems, advice,
                                           self._unit_hint(fastest, too_small)), stacklevel=4)
+
+    def _fastest_precession(self, q, spins, mu):
+        """ω_s (:func:`fastest_precession`) at positions q and unit spins, from
+        one direct pass over the half list (no pair geometry kept for it)."""
+        B = self.ev.evaluate(q, spins, Want(magnetic_forces=True)).magnetic_forces
+        return fastest_precession(self._precession_rates(mu), B, self.hbar)
 
     def _unit_hint(self, fastest, too_small):
         """For a Python caller, where the numbers show a likely slip of units: a

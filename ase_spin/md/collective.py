@@ -17,7 +17,7 @@ from ..constants import HBAR
 from ..neighbors import rows_in_order
 from ..validate import integer, real_scalar
 from . import fused, kernels, policy
-from .base import SpinLatticeDynamics
+from .base import MAX_PHASE, SpinLatticeDynamics, precession_phrase
 from .errors import IntegrationError, SpinConvergenceError, UnstableStepError
 from .policy import SOLVERS, TOL_RANGE, StepPolicy
 
@@ -467,7 +467,7 @@ class CollectivePRK(SpinLatticeDynamics):
         if which == 1:
             W, st.Wnext = st.Wnext, W
         if status == kernels.NOT_CONVERGED:
-            self._raise_not_converged(operators, W, its, delta, scale, mean)
+            self._raise_not_converged(operators, s, W, its, delta, mean)
         return W, stilde, its, moved, carry
 
     def _choose_order(self, stage, local, sweeps, measured):
@@ -565,7 +565,7 @@ class CollectivePRK(SpinLatticeDynamics):
             return solve(threads.count(), pairs.row, pairs.j, c, *args, memory, local, field)
         return kernels.midpoint_solve_operators(operators, *args, mean, memory, local)
 
-    def _raise_not_converged(self, operators, W, its, delta, scale, mean):
+    def _raise_not_converged(self, operators, s, W, its, delta, mean):
         B = np.zeros_like(W)
         for op in operators:
             op.field(W, B, mean)
@@ -574,16 +574,26 @@ class CollectivePRK(SpinLatticeDynamics):
             row = row if row >= 0 else kernels.first_nonfinite_row(B)  # the field's
             if row >= 0:
                 self._raise_nonfinite(2, row)
-        field = np.sqrt(np.einsum("ij,ij->i", B, B))
-        x = float(np.nanmax(np.abs(scale) * field)) if len(field) else 0.0
+        # the phase of the timestep warning (one function: they cannot disagree),
+        # from the fields at the step's start (at W, a midpoint of spins far
+        # apart, they may all but vanish)
+        try:
+            omega = self._fastest_precession(self._state.q, s, self._state.mu)
+        except (ValueError, FloatingPointError):  # (a failure of its own: not this one's)
+            omega = float("nan")
+        phase = abs(self.dt) * omega
         if self._solver == "jacobi":
             why = ("the Jacobi iteration (solver=\"jacobi\") contracts only while this is "
-                   "well below 2; solver=\"auto\" converges further. ")
+                   "well below 2 rad; solver=\"auto\" converges further. ")
+        elif phase > kernels.MAX_TURN:
+            why = (f"above {kernels.MAX_TURN:g} rad the midpoint rotation of a spin "
+                   "saturates at a half turn: no step of the dynamics exists. ")
         else:
             why = "at this step size the midpoint spins may not exist or not be unique. "
         raise SpinConvergenceError(
             f"the midpoint-spin iteration ({self._solver}) did not converge at step "
             f"{self.nsteps}: max |ΔW| = {delta:.3g} after {its} iterations (tol "
-            f"{self.tol:.1e}). h·max|B|/ħ ≈ {x:.3g} rad: {why}Reduce the timestep (now "
-            f"{self.dt / units.fs:.4g} fs) or raise max_iter. The atoms keep the state "
+            f"{self.tol:.1e}). At the step's start {precession_phrase(self.dt, omega)}: "
+            f"{why}Reduce the timestep (now {self.dt / units.fs:.4g} fs; keep h·ω below "
+            f"{MAX_PHASE} rad per step) or raise max_iter. The atoms keep the state "
             f"before this step.")

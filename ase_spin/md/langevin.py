@@ -12,14 +12,15 @@ from collections import deque
 import numpy as np
 from ase import units
 
-from ..validate import flag, real_scalar
+from ..validate import REQUIRED, flag, integer, real_scalar
 from . import kernels
+from .base import fastest_precession
 from .baths import BathHalfSteps
 from .collective import CollectivePRK
 from .kernels.bath import midpoint_remainder, predict_midpoint
 from .logger import LangevinLogger
 
-__all__ = ["Langevin", "relax_spins", "LangevinLogger"]
+__all__ = ["Langevin", "relax_spins", "LangevinLogger", "RELAX_PHASE", "RELAX_CHECK"]
 
 
 
@@ -57,6 +58,32 @@ def _temperature(value, what):
     if t < 0.0:
         raise ValueError(f"{what} must be >= 0 K, got {t}")
     return t
+
+
+#: What each required parameter of Langevin is, with typical values: the
+#: message when it is missing (see :func:`_require`).
+_TYPICAL = {
+    "temperature_K": "the bath temperature in K",
+    "spin_damping": "λ, the spin bath's dimensionless Gilbert damping: typically 0.01 to "
+                    "0.1, 0 for no spin bath",
+    "friction": "γ, the lattice bath's friction in 1/(ASE time), as ASE's Langevin: "
+                "typically 0.001 / units.fs to 0.01 / units.fs, 0 for no lattice bath",
+}
+
+
+def _require(**given):
+    """TypeError naming the required parameters of Langevin that were not
+    given, what each is and its typical values. They have no defaults, as in
+    ASE's Langevin (friction) and LAMMPS's fix langevin and langevin/spin:
+    the coupling to a bath is part of the physics a run shows (how fast it
+    equilibrates, how much the bath disturbs correlations and switching
+    rates), a number for the user to choose."""
+    missing = [k for k, v in given.items() if v is REQUIRED]
+    if missing:
+        raise TypeError(
+            "Langevin needs " + "; ".join(f"{k} ({_TYPICAL[k]})" for k in missing)
+            + ". For example: Langevin(atoms, 0.5 * units.fs, temperature_K=300, "
+            "spin_damping=0.1, friction=0.01 / units.fs)")
 
 
 def _non_negative(value, what, unit):
@@ -124,13 +151,26 @@ class Langevin(BathHalfSteps, CollectivePRK):
     ----------
     atoms, timestep
         As for :class:`CollectivePRK`; the timestep must be positive.
-    temperature_K : float
-        Lattice bath temperature (K).
-    spin_damping : float
-        λ ≥ 0, dimensionless; 0: spins without bath (their NVE precession).
-    friction : float
-        γ ≥ 0 in 1/(ASE time), as ``ase.md.langevin.Langevin`` (e.g.
-        ``0.01 / units.fs``); 0: lattice without bath.
+    temperature_K : float, required
+        Lattice bath temperature (K). (``temperature``, ASE's older name, in
+        eV there, is refused as an unknown keyword naming this one.)
+    spin_damping : float, required
+        λ ≥ 0, dimensionless; typically 0.01 to 0.1 (LAMMPS's ``fix
+        langevin/spin`` example: 0.01); 0: spins without bath (their NVE
+        precession).
+    friction : float, required
+        γ ≥ 0 in 1/(ASE time), as ``ase.md.langevin.Langevin``: typically
+        ``0.001 / units.fs`` to ``0.01 / units.fs`` (ASE's suggestion);
+        0: lattice without bath.
+
+        The three have no defaults, as ASE's Langevin (friction) and LAMMPS's
+        ``fix langevin`` and ``fix langevin/spin``: how strongly a bath
+        couples is part of the physics a run shows (how fast it equilibrates,
+        how much the bath disturbs time correlations, switching rates and
+        magnon lifetimes), not a numerical setting, so it is the user's
+        choice. Leaving one out is a TypeError that names each with its
+        typical values; an unknown keyword is reported first, with the one
+        most likely meant.
     spin_temperature_K : float, optional
         Spin bath temperature (K); default ``temperature_K``.
     fixcm : bool
@@ -159,10 +199,14 @@ class Langevin(BathHalfSteps, CollectivePRK):
     compiled_predictor = False
     compiled_blocks = False
 
-    def __init__(self, atoms, timestep, temperature_K, *, spin_damping, friction,
-                 spin_temperature_K=None, hbar=None, precession=None,
+    def __init__(self, atoms, timestep, temperature_K=REQUIRED, *, spin_damping=REQUIRED,
+                 friction=REQUIRED, spin_temperature_K=None, hbar=None, precession=None,
                  gyromagnetic=None, order=2, fixcm=True, rng=None, trajectory=None,
                  logfile=None, loginterval=1, **kwargs):
+        # unknown keywords first: temperature=300 (ASE's old name) is a slip to
+        # name as such, not a missing temperature_K
+        self._refuse_unknown(kwargs)
+        _require(temperature_K=temperature_K, spin_damping=spin_damping, friction=friction)
         self.temp = _temperature(temperature_K, "temperature_K") * units.kB
         self.spin_temp = (self.temp if spin_temperature_K is None else
                           _temperature(spin_temperature_K, "spin_temperature_K") * units.kB)
@@ -430,6 +474,16 @@ class Langevin(BathHalfSteps, CollectivePRK):
         return self.get_total_energy() - self.get_bath_energy()
 
 
+#: relax_spins's default timestep turns the fastest spin by this angle (rad)
+#: per step (with the Gilbert factor: h·max r_i|B_i|/(ħ(1+λ²)), the quantity of
+#: the timestep warning, which it keeps clear of)
+RELAX_PHASE = 0.2
+#: relax_spins checks the torque after steps 1, 2, 4, ..., RELAX_CHECK and then
+#: every RELAX_CHECK steps (and at its last step): between two checks the
+#: steps run as one ``dyn.run(k)``, the baths' half steps merged
+RELAX_CHECK = 32
+
+
 def relax_spins(atoms, *, fmax=1e-6, damping=1.0, timestep=None, steps=100_000,
                 hbar=None, gyromagnetic=None, **kwargs):
     r"""Relax the spins to a (local) minimum of the energy at fixed positions:
@@ -438,41 +492,58 @@ def relax_spins(atoms, *, fmax=1e-6, damping=1.0, timestep=None, steps=100_000,
     towards its field, until every torque |s_i × B_i| ≤ ``fmax`` (eV).
 
     ``damping``: λ (1 is the fastest relaxation of a spin in a fixed field);
-    ``timestep``: default 0.2 ħ(1+λ²)/(r_max |B|_max) from the initial fields.
-    The spins are written back to ``atoms``; positions and momenta are not
-    touched. Returns the number of steps taken; raises RuntimeError (the
-    Atoms keep their spins from before the call) if ``fmax`` is not reached
-    in ``steps`` steps.
+    ``timestep``: default :data:`RELAX_PHASE`·ħ(1+λ²)/max_i(r_i|B_i|) from the
+    initial fields (0.2 rad per step for the fastest spin: no TimestepWarning;
+    one given is checked as any integrator's).
+
+    The steps run in blocks, ``dyn.run(k)`` (the cost of a Langevin step), and
+    the torque is checked between blocks from the fields the last step
+    computed: after steps 1, 2, 4, ..., :data:`RELAX_CHECK` (32) and then every
+    32 steps, and after step ``steps``. It stops at the first check where the
+    largest torque is ≤ ``fmax`` and returns the number of steps taken, so the
+    count is one of 0, 1, 2, 4, 8, 16, a multiple of 32 or ``steps``; the
+    torque may have reached ``fmax`` up to 31 steps before (the spins are then
+    relaxed further). The spins are written back to ``atoms``; positions and
+    momenta are not touched. Raises RuntimeError (the Atoms keep their spins
+    from before the call) if ``fmax`` is not reached in ``steps`` steps.
     """
     fmax = _non_negative(fmax, "fmax", "eV")
     damping = real_scalar(damping, "damping")
     if not damping > 0.0:
         raise ValueError(f"damping must be > 0 to relax spins, got {damping}")
+    steps = integer(steps, "steps", minimum=0)
     before = atoms.arrays.get("initial_magmoms")
     before = None if before is None else before.copy()
-    dyn = None
     try:
-        if timestep is None:
-            probe = Langevin(atoms, 1.0, 0.0, spin_damping=damping, friction=0.0,
-                             hbar=hbar, gyromagnetic=gyromagnetic, lattice="frozen",
-                             **kwargs)
-            B = probe.get_magnetic_forces()
-            probe._sync()
-            field = float((np.linalg.norm(B, axis=1) * probe._state.rate).max(initial=0.0))
-            if field == 0.0:
-                return 0
-            timestep = 0.2 * probe.hbar / field
-        dyn = Langevin(atoms, timestep, 0.0, spin_damping=damping, friction=0.0,
-                       hbar=hbar, gyromagnetic=gyromagnetic, lattice="frozen", **kwargs)
-        for n in range(steps + 1):
-            B = dyn.get_magnetic_forces()
-            s = dyn._state.s
-            torque = np.linalg.norm(np.cross(s, B), axis=1)
-            if float(torque.max(initial=0.0)) <= fmax:
-                return n
-            if n < steps:
-                dyn.step()
-        raise RuntimeError(f"relax_spins: largest torque {float(torque.max()):.3g} eV "
+        chosen = timestep is None
+        dyn = Langevin(atoms, 1.0 if chosen else timestep, 0.0, spin_damping=damping,
+                       friction=0.0, hbar=hbar, gyromagnetic=gyromagnetic, lattice="frozen",
+                       **kwargs)
+        if chosen:  # its timestep follows from the fields below: no check of the 1.0
+            dyn._checked_dt = dyn.dt
+        st = dyn._sync()
+        B = dyn._spin_energy_fields(energy=False).B if dyn.magnetic else np.zeros_like(st.s)
+        torque = _largest_torque(st.s, B)
+        if torque <= fmax:
+            return 0
+        if chosen:
+            omega = fastest_precession(st.rate, B, dyn.hbar)  # st.rate: with 1/(1+λ²)
+            dyn.dt = dyn._checked_dt = RELAX_PHASE / omega
+        done = 0
+        while done < steps:
+            # the next check: at 1, 2, 4, ..., RELAX_CHECK, then every RELAX_CHECK
+            check = 1 if done == 0 else min(2 * done, done + RELAX_CHECK)
+            block = min(check, steps) - done
+            dyn.run(block)
+            done += block
+            st = dyn._sync()
+            # the run's last step ends with its closing bath, whose fields at
+            # the spins it leaves are kept (st.EB): no evaluation of their own
+            EB = st.EB if st.EB is not None else dyn._spin_energy_fields(energy=False)
+            torque = _largest_torque(st.s, EB.B)
+            if torque <= fmax:
+                return done
+        raise RuntimeError(f"relax_spins: largest torque {torque:.3g} eV "
                            f"> fmax = {fmax:g} eV after {steps} steps; raise steps or "
                            "damping. The spins are as they were before the call.")
     except BaseException:
@@ -481,3 +552,11 @@ def relax_spins(atoms, *, fmax=1e-6, damping=1.0, timestep=None, steps=100_000,
         else:
             atoms.arrays["initial_magmoms"] = before
         raise
+
+
+def _largest_torque(s, B):
+    """max_i |s_i × B_i| (eV), 0 without spins."""
+    if not len(s):
+        return 0.0
+    t = np.cross(s, B)
+    return float(np.sqrt(np.einsum("ij,ij->i", t, t).max()))

@@ -17,9 +17,12 @@ the pair lists' fine skin").
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
-from .checks import MAX_IMAGES, check_cell, face_distances, largest_displacements
+from ..validate import MIN_DISTANCE, ImplausibleParameterWarning
+from .checks import MAX_IMAGES, check_cell, closest_pair, face_distances, largest_displacements
 from .pairs import PairList
 from .search import (filter_count, filter_fill, full_from_half, grid_half, half_from_full,
                      sweep_pairs, wrap_positions)
@@ -127,7 +130,8 @@ class NeighborCache:
         pbc = np.asarray(pbc, dtype=bool)
         if (self._reference is None or positions.shape != self._reference.shape
                 or cell.tobytes() != self._cell_key or pbc.tobytes() != self._pbc_key):
-            return self._build(positions, cell, pbc, also)
+            # a structure seen for the first time (or a new cell): its closest pair checked
+            return self._build(positions, cell, pbc, also, check=True)
         # NaN positions: no rebuild, as before (the integrators report them)
         moved_since_build, moved = largest_displacements(positions, self._reference,
                                                          self._fine_reference)
@@ -152,7 +156,7 @@ class NeighborCache:
         also = np.ascontiguousarray(also, dtype=float)
         return 2.0 * largest_displacements(also, positions, positions)[0]
 
-    def _build(self, positions, cell, pbc, also):
+    def _build(self, positions, cell, pbc, also, check=False):
         cell, pbc = check_cell(cell, pbc)
         # the old list and its sub-lists go before the new one is built
         self.half = None
@@ -174,7 +178,25 @@ class NeighborCache:
         self._cell_key = np.asarray(self._cell, dtype=float).tobytes()
         self._pbc_key = np.asarray(self._pbc, dtype=bool).tobytes()
         self.builds += 1
+        if check and n > 1:
+            self._check_distances(positions)
         return True
+
+    def _check_distances(self, positions):
+        """ImplausibleParameterWarning when two atoms of a structure seen for the
+        first time are closer than MIN_DISTANCE (Å): one pass over the list
+        just built (not at the rebuilds of a run: atoms in a collision may
+        come that close)."""
+        half = self.half
+        i, j, r, count = closest_pair(positions, half.row, half.j, half.image, half.images,
+                                      MIN_DISTANCE)
+        if count:
+            others = f" ({count} pairs closer than {MIN_DISTANCE:g} Å)" if count > 1 else ""
+            warnings.warn(ImplausibleParameterWarning(
+                f"atoms {i} and {j} are {r:.3g} Å apart{others}: closer than "
+                f"{MIN_DISTANCE:g} Å, where no two atoms of a solid or molecule are; "
+                "a duplicated atom, or positions in other units than Å (nm, bohr, "
+                "fractional coordinates given as Cartesian)?"), stacklevel=2)
 
     def _search_half(self, positions, cell, pbc):
         """The half list within cutoff + skin as (row, j, image, shifts table)

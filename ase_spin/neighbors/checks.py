@@ -11,7 +11,7 @@ import numpy as np
 from ..validate import real_array
 
 __all__ = ["max_displacement", "largest_displacements", "all_finite", "separation",
-           "check_cell", "MAX_IMAGES", "face_distances"]
+           "check_cell", "MAX_IMAGES", "face_distances", "closest_pair"]
 
 
 @nb.njit(cache=True)
@@ -79,6 +79,27 @@ def separation(pos, images, i, j, m):
     dy = (pos[j, 1] - pos[i, 1]) + images[m, 1]
     dz = (pos[j, 2] - pos[i, 2]) + images[m, 2]
     return dx, dy, dz, dx * dx + dy * dy + dz * dz
+
+
+@nb.njit(cache=True)
+def closest_pair(pos, row, j, image, images, below):
+    """(i, j, r) of the closest pair of a half list in compressed-row form
+    (-1, -1, inf without pairs), and how many pairs are closer than ``below``:
+    one pass over the pairs, no search."""
+    best = np.inf
+    bi = bj = -1
+    count = 0
+    below2 = below * below
+    for i in range(len(row) - 1):
+        for k in range(row[i], row[i + 1]):
+            _, _, _, d2 = separation(pos, images, i, j[k], image[k])
+            if d2 < below2:
+                count += 1
+            if d2 < best:
+                best = d2
+                bi = i
+                bj = j[k]
+    return bi, bj, np.sqrt(best), count
 
 
 def check_cell(cell, pbc):

@@ -6,12 +6,20 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ..validate import real_scalar, unit_vector
+from ..validate import MAX_SITE_ENERGY, real_scalar, unit_vector, warn_implausible
 from .base import SingleSiteTerm
 from .lammps_form import LammpsFix, number_text, vector_text
 from .parameters import per_atom, species_values
 
 __all__ = ["UniaxialAnisotropy", "CubicAnisotropy"]
+
+
+def _check_size(K, what):
+    """ImplausibleParameterWarning for |K| above MAX_SITE_ENERGY eV per atom."""
+    warn_implausible(K, MAX_SITE_ENERGY, what, "eV per atom",
+                     "magnetocrystalline anisotropies are μeV to a few meV per atom",
+                     "a value in meV, in J/m³ or per formula unit given as eV per atom? "
+                     "ase_spin takes K in eV per magnetic atom", stacklevel=4)
 
 
 @nb.njit(cache=True, inline="always")
@@ -50,6 +58,7 @@ class UniaxialAnisotropy(SingleSiteTerm):
 
     def __init__(self, K, axis):
         self.K = species_values(K, "UniaxialAnisotropy K", real_scalar)
+        _check_size(self.K, "UniaxialAnisotropy K")
         self.axis = unit_vector(axis, "UniaxialAnisotropy axis")
         self._finish()
 
@@ -131,6 +140,8 @@ class CubicAnisotropy(SingleSiteTerm):
     def __init__(self, K1, K2=0.0, axes=None):
         self.K1 = species_values(K1, "CubicAnisotropy K1", real_scalar)
         self.K2 = species_values(K2, "CubicAnisotropy K2", real_scalar)
+        _check_size(self.K1, "CubicAnisotropy K1")
+        _check_size(self.K2, "CubicAnisotropy K2")
         if axes is None:
             axes = np.eye(3)
         if np.ndim(axes) != 2 or len(axes) != 3:

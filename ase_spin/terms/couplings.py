@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..validate import length, real_scalar
+from ..validate import MAX_COUPLING, length, real_scalar, warn_implausible
 from .parameters import Parameterised
 
 __all__ = ["Coupling", "BetheSlater", "Cubic", "FORM_OFF", "FORM_BETHE_SLATER", "FORM_CUBIC",
-           "FORM_PYTHON", "RC2", "FORM", "P0", "P1", "P2", "checked_values", "check_coupling"]
+           "FORM_PYTHON", "RC2", "FORM", "P0", "P1", "P2", "checked_values", "check_coupling",
+           "check_size"]
 
 #: Coupling forms the compiled kernels evaluate directly (a coupling's
 #: ``_form``); anything else (FORM_PYTHON) is evaluated by its own
@@ -70,6 +71,7 @@ class BetheSlater(Coupling):
 
     def __init__(self, J1, J2, J3):
         self.J1 = real_scalar(J1, "BetheSlater J1")
+        check_size(self.J1, "BetheSlater J1")
         self.J2 = real_scalar(J2, "BetheSlater J2")
         self.J3 = length(J3, "BetheSlater J3")
         # kernel parameters: J1, J2 and 1/J3² (a product per pair, not a division)
@@ -105,6 +107,9 @@ class Cubic(Coupling):
     def __init__(self, J0, rc):
         self.J0 = real_scalar(J0, "Cubic J0")
         self.rc = length(rc, "Cubic rc")
+        # J0 is J(0), where no pair is (J0 = 2 eV gives 10 meV at 5/6 rc): the
+        # value at rc/2, J0/8, is at or below any neighbour's within the cutoff
+        check_size(self.J0 / 8.0, f"Cubic J(rc/2) = J0/8 (J0 = {self.J0:g} eV)")
         self._params = (self.J0, self.rc, 1.0 / self.rc)
         self._finish()
 
@@ -114,6 +119,15 @@ class Cubic(Coupling):
 
     def __repr__(self):
         return f"Cubic(J0={self.J0}, rc={self.rc})"
+
+
+def check_size(J, what, stacklevel=4):
+    """ImplausibleParameterWarning for a coupling |J| above MAX_COUPLING eV
+    (per pair; ``J`` a number or an array of them)."""
+    J = np.asarray(J, dtype=float)
+    warn_implausible(float(np.abs(J).max(initial=0.0)), MAX_COUPLING, what, "eV",
+                     "exchange couplings are meV to ~0.1 eV per pair", "energy",
+                     stacklevel=stacklevel)
 
 
 def checked_values(coupling, r):

@@ -7,7 +7,7 @@ import numpy as np
 
 from .._jit.threads import threaded
 from ..neighbors import separation
-from ..validate import length, real_scalar, unit_vector
+from ..validate import MAX_COUPLING, length, real_scalar, unit_vector, warn_implausible
 from .base import PairSpinTerm
 from .lammps_form import LammpsPair, number_text, vector_text
 from .parameters import is_pair_mapping, pair_values, resolve_pairs
@@ -161,6 +161,9 @@ class DMI(PairSpinTerm):
 
     def __init__(self, D, direction, rc):
         self.D = pair_values(D, "DMI D", real_scalar)
+        warn_implausible(self.D, MAX_COUPLING, "DMI |D|", "eV",
+                         "Dzyaloshinskii–Moriya couplings are ~0.1 to a few meV per pair",
+                         "energy")
         self.direction = pair_values(direction, "DMI direction", unit_vector)
         self.rc = length(rc, "DMI rc")
         self.cutoff = self.rc

@@ -12,7 +12,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from ..validate import length, real_array
-from .couplings import Coupling
+from .couplings import Coupling, check_size
 from .exchange import Exchange
 from .parameters import pair_key
 
@@ -71,6 +71,7 @@ class Tabulated(Coupling):
             raise ValueError(
                 f"Tabulated J must be 0 at the last point (J is zero beyond it); got "
                 f"J({r[-1]} Å) = {J[-1]} eV: add a point where the coupling has decayed")
+        check_size(J, "Tabulated J")
         self.r = _frozen(r)
         self.J = _frozen(J)
         self.rc = float(r[-1])
@@ -111,6 +112,7 @@ class ShellCoupling(Coupling):
         self.tol = length(tol, "ShellCoupling tol")
         table = _shell_table(shells, "ShellCoupling shells")
         d, J = table[:, 0], table[:, 1]
+        check_size(J, "ShellCoupling J")
         gaps = np.diff(d)
         if len(gaps) and gaps.min() <= 2.0 * self.tol:
             k = int(np.argmin(gaps))

@@ -6,7 +6,8 @@ import numba as nb
 import numpy as np
 
 from ..constants import MU_B_LAMMPS
-from ..validate import positive_scalar, real_array, real_scalar, unit_vector
+from ..validate import (MAX_FIELD_T, positive_scalar, real_array, real_scalar, unit_vector,
+                        warn_implausible)
 from .base import SingleSiteTerm
 from .lammps_form import LammpsFix, number_text, vector_text
 
@@ -61,6 +62,8 @@ class Zeeman(SingleSiteTerm):
             field = real_scalar(field, "Zeeman field")
             direction = unit_vector(direction, "Zeeman direction")
             H = field * direction
+        warn_implausible(float(np.sqrt(H @ H)), MAX_FIELD_T, "Zeeman field |H|", "T",
+                         "laboratory fields reach ~45 T static, ~100 T pulsed", "field")
         self.field = H if direction is None else field
         self.direction = direction
         H.setflags(write=False)  # edited in place, bound tables would go stale unnoticed
