@@ -1,5 +1,7 @@
 """The golden record (tests/golden.py): every reference scene ends on the same
-bits as on main before the reorganisation."""
+bits as on main before the reorganisation (re-recorded once since, for the
+end points of the locally exact sweeps: docs/benchmarks.md has no figure that
+changed beyond its printed digits)."""
 
 import numpy as np
 import pytest

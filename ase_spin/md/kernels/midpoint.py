@@ -117,6 +117,18 @@ def local_midpoint(px, py, pz, bx, by, bz, c):
     and y = λ² is the positive root of y² − (4|p|² − c²|b|²) y − 4c²(p·b)² = 0
     (taken in the form without cancellation). Returns (Wx, Wy, Wz, found):
     no root when p ⊥ b and |c b| ≥ 2|p| (a half-turn or more per step)."""
+    wx, wy, wz, _, _, _, found = local_midpoint_split(px, py, pz, bx, by, bz, c)
+    return wx, wy, wz, found
+
+
+@nb.njit(cache=True, inline="always")
+def local_midpoint_split(px, py, pz, bx, by, bz, c):
+    r""":func:`local_midpoint`'s W and its part beyond the spin,
+    E = W − g p = g (a p × b + a²(p·b) b): small for a small step and computed
+    without cancellation, so that p × W = p × E is known to round-off in E, not
+    to round-off in W (which, once W is rounded to a unit vector, is ε absolute:
+    an end point made from the rounded W alone moves the spin by ~2ε a step,
+    whatever the step). Returns (Wx, Wy, Wz, Ex, Ey, Ez, found)."""
     pp = px * px + py * py + pz * pz
     pb = px * bx + py * by + pz * bz
     cc = c * c
@@ -129,16 +141,21 @@ def local_midpoint(px, py, pz, bx, by, bz, c):
     else:
         y = 2.0 * r / (root - q)
     if not y > 0.0:
-        return 0.0, 0.0, 0.0, False
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False
     sy = np.sqrt(y)
     a = c / sy
     f = a * a * pb
     # W = v/λ = 2 sqrt(y) v'/(y + c²|b|²) with v' = p + a p × b + a²(p·b) b: unit,
     # as y(y + c²|b|²) = 4(|p|² y + c²(p·b)²) is the equation of y
     g = 2.0 * sy / (y + cb)
-    return (g * (px + a * (py * bz - pz * by) + f * bx),
-            g * (py + a * (pz * bx - px * bz) + f * by),
-            g * (pz + a * (px * by - py * bx) + f * bz), True)
+    tx = a * (py * bz - pz * by)
+    ty = a * (pz * bx - px * bz)
+    tz = a * (px * by - py * bx)
+    ux = f * bx
+    uy = f * by
+    uz = f * bz
+    return (g * (px + tx + ux), g * (py + ty + uy), g * (pz + tz + uz),
+            g * (tx + ux), g * (ty + uy), g * (tz + uz), True)
 
 
 
@@ -150,7 +167,8 @@ def local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, c
     (bx, by, bz) of the current iterate (:func:`local_midpoint`, for the spin
     p = s_i + carry), the next iterate. Its end point is left to
     :func:`end_points_of_rows` after the last sweep: it depends on that sweep's W_i
-    only, so it is made once a solve, not once a sweep. Where the local equation has no root, the Jacobi update
+    and E_i = W_i − g p only (:func:`local_midpoint_split`; E_i is left in
+    ``stilde``), so it is made once a solve, not once a sweep. Where the local equation has no root, the Jacobi update
     of :func:`update_row`, end point included, the row marked in
     ``jacobi_rows``. Returns max |ΔW_i| over components, or 4 (more than any
     change of unit vectors: "not converged") where c_i|B̄_i| >
@@ -163,10 +181,15 @@ def local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, c
     if c * c * (bx * bx + by * by + bz * bz) > MAX_TURN * MAX_TURN * (px * px + py * py
                                                                       + pz * pz):
         return 4.0  # refused: reported as not converged (see MAX_TURN)
-    wx, wy, wz, found = local_midpoint(px, py, pz, bx, by, bz, c)
+    wx, wy, wz, ex, ey, ez, found = local_midpoint_split(px, py, pz, bx, by, bz, c)
     if not found:
         jacobi_rows[i] = True
         return update_row(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out)
+    # W's part beyond the spin, for the end point (end_points_of_rows reads it
+    # there and writes the end point over it)
+    stilde[i, 0] = ex
+    stilde[i, 1] = ey
+    stilde[i, 2] = ez
     ox = cur[i, 0]
     oy = cur[i, 1]
     oz = cur[i, 2]
@@ -185,15 +208,19 @@ def end_points_of_rows(lo, hi, s, W, stilde, carry, carry_out, jacobi_rows):
     the increment
 
     .. math:: \tilde{\mathbf s}_i - \mathbf p = 2 (\mathbf p \times \mathbf W_i)
-              \times \mathbf W_i = 2[(\mathbf p\cdot\mathbf W_i)\mathbf W_i
-              - |\mathbf W_i|^2 \mathbf p],
+              \times \mathbf W_i, \qquad \mathbf p \times \mathbf W_i
+              = \mathbf p \times \mathbf E_i,
 
-    small and without cancellation for a small step (p × W is), and added to
-    s_i compensated as in :func:`_reflect`. With |W_i|² = 1 + ε (round-off),
-    |s̃_i|² = |p|² + 4ε|p × W_i|²: the length kept to far below round-off. No
-    field, no division: a third of :func:`_reflect`'s cost. Rows without
-    spin, and those the Jacobi update took (``jacobi_rows``: it wrote their
-    end points), are skipped."""
+    E_i = W_i − g_i p the last sweep's part of W_i beyond the spin, which
+    :func:`local_midpoint_direction` left in ``stilde`` (read here, then
+    overwritten by the end point). p × W_i from the rounded unit W_i would
+    cancel: its error, ε absolute rather than ε|p × W_i|, would move every
+    spin by ~2ε a step whatever the step, and over 2^17–2^20 steps of the
+    paper chain that outgrew the h² error (docs/paper.md, Figure 2). E_i is
+    small for a small step and known to its own round-off. The sum is
+    compensated as in :func:`_reflect`. |s̃_i|² = |p|² to round-off in the
+    increment. No field, no division. Rows without spin, and those the Jacobi
+    update took (``jacobi_rows``: it wrote their end points), are skipped."""
     for i in range(lo, hi):
         sx = s[i, 0]
         sy = s[i, 1]
@@ -206,10 +233,16 @@ def end_points_of_rows(lo, hi, s, W, stilde, carry, carry_out, jacobi_rows):
         wx = W[i, 0]
         wy = W[i, 1]
         wz = W[i, 2]
-        # u = p × W, the carry's part kept apart from the spin's
-        ux = (sy * wz - sz * wy) + (cy * wz - cz * wy)
-        uy = (sz * wx - sx * wz) + (cz * wx - cx * wz)
-        uz = (sx * wy - sy * wx) + (cx * wy - cy * wx)
+        # u = p × W = p × E, E = W − g p the last sweep's part of W beyond the
+        # spin (local_midpoint_direction left it in stilde): p × W from the
+        # rounded W would carry W's rounding (ε, not ε|p × W|) into the end
+        # point every step; the carry's part kept apart from the spin's
+        ex = stilde[i, 0]
+        ey = stilde[i, 1]
+        ez = stilde[i, 2]
+        ux = (sy * ez - sz * ey) + (cy * ez - cz * ey)
+        uy = (sz * ex - sx * ez) + (cz * ex - cx * ez)
+        uz = (sx * ey - sy * ex) + (cx * ey - cy * ex)
         _add_compensated(i, sx, sy, sz, cx + 2.0 * (uy * wz - uz * wy),
                          cy + 2.0 * (uz * wx - ux * wz), cz + 2.0 * (ux * wy - uy * wx),
                          stilde, carry_out)
