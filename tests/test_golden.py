@@ -1,7 +1,6 @@
 """The golden record (tests/golden.py): every reference scene ends on the same
-bits as on main before the reorganisation (re-recorded once since, for the
-end points of the locally exact sweeps: docs/benchmarks.md has no figure that
-changed beyond its printed digits)."""
+bits as recorded: before the reorganisation, and once since, when the end points
+of the locally exact sweeps stopped accumulating W's rounding."""
 
 import numpy as np
 import pytest
