@@ -3,6 +3,7 @@
 from ._jit import cache as _compilation  # noqa: F401 - announces first-use compilation
 from .calculator import SpinLatticeCalculator
 from .constants import G_ELECTRON, HBAR_LAMMPS, MU_B, MU_B_LAMMPS
+from .constraints import FixSpins
 from .hamiltonian import AtomsTooCloseError, Evaluator, Hamiltonian
 from .interop.lammps import write_lammps
 from .interop.lammps_dump import read_lammps_spin_dump
@@ -24,7 +25,7 @@ __version__ = "0.1.0"
 __all__ = [
     "SpinLatticeCalculator", "Hamiltonian", "Evaluator", "Want", "AtomsTooCloseError",
     "ImplausibleParameterWarning",
-    "set_spins", "get_spins", "get_moments",
+    "set_spins", "get_spins", "get_moments", "FixSpins",
     "CollectivePRK", "SuzukiTrotter", "SpinLatticeDynamics", "IntegrationError",
     "SpinConvergenceError", "UnstableStepError", "Langevin", "relax_spins", "SpinMDLogger", "HBAR", "HBAR_LAMMPS", "MU_B", "MU_B_LAMMPS", "G_ELECTRON",
     "recover_trajectory", "complete_frames", "write_lammps", "read_lammps_spin_dump",

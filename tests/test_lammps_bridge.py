@@ -544,3 +544,64 @@ def test_alloy_eam_export_keeps_the_scene_masses(tmp_path):
     reference = _lammps_masses(scene())
     _compare(frames, reference, ase_spin.SuzukiTrotter(reference, 0.1 * units.fs,
                                                        hbar=ase_spin.HBAR_LAMMPS), 10)
+
+
+def _pinned_scene(cubic=False):
+    """:func:`_scene` with the spins of a slab of atoms (x below a quarter of
+    the box) and of a few scattered atoms pinned (ase_spin.FixSpins)."""
+    atoms = _scene(cubic=cubic)
+    x = atoms.positions[:, 0]
+    pinned = np.flatnonzero(x < 0.25 * atoms.cell[0, 0])
+    atoms.set_constraint(ase_spin.FixSpins(np.union1d(pinned, [50, 77, 131])))
+    return atoms
+
+
+@needs_lammps
+def test_pinned_spins_follow_suzuki_trotter_step_for_step(tmp_path):
+    """FixSpins becomes a group and ``fix setforce/spin 0.0 0.0 0.0`` (after
+    the precession/spin fixes, before nve/spin): the deck run by LAMMPS and
+    SuzukiTrotter agree at round-off at every dumped step, the pinned spins
+    never move in either (they still act on the others: the run differs from
+    one without them), their atoms do, and LAMMPS's dump shows fm = 0 for
+    them where the calculator keeps B = −∂E/∂s."""
+    atoms = _pinned_scene(cubic=True)
+    pinned = atoms.constraints[0].index
+    assert 20 < len(pinned) < len(atoms) // 2
+    dyn = ase_spin.SuzukiTrotter(atoms, 0.1 * units.fs, hbar=ase_spin.HBAR_LAMMPS)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", LammpsIntegratorWarning)
+        files = write_lammps(tmp_path, atoms, dyn, steps=40, dump_interval=10)
+    deck = files.input.read_text().splitlines()
+    group = next(line for line in deck if line.startswith("group pinned_spins id "))
+    ids = []
+    for part in group.split()[3:]:
+        lo, _, hi = part.partition(":")
+        ids += range(int(lo), int(hi or lo) + 1)
+    assert ids == (pinned + 1).tolist()
+    fix = deck.index("fix pin_spins pinned_spins setforce/spin 0.0 0.0 0.0")
+    assert max(k for k, line in enumerate(deck) if "precession/spin" in line) < fix
+    assert fix < deck.index("fix integrate all nve/spin lattice moving")
+    _run_in_process(tmp_path)
+    frames = read_lammps_spin_dump(files.dump)
+    assert [f.info["timestep"] for f in frames] == [0, 10, 20, 30, 40]
+    start = ase_spin.get_spins(frames[0])[pinned]
+    for frame in frames[1:]:
+        assert np.array_equal(ase_spin.get_spins(frame)[pinned], start)
+    assert np.abs(frames[-1].positions[pinned] - frames[0].positions[pinned]).max() > 1e-4
+    assert not frames[0].calc.results["magnetic_forces"][pinned].any()
+    B = atoms.calc.get_magnetic_forces(atoms)
+    free = np.setdiff1d(np.arange(len(atoms)), pinned)
+    assert np.abs(frames[0].calc.results["magnetic_forces"][free] - B[free]).max() < (
+        1e-13 * np.abs(B).max())
+    assert np.abs(B[pinned]).min() > 0.0  # (the calculator's: −∂E/∂s, not zeroed)
+    reference = _lammps_masses(_pinned_scene(cubic=True))
+    ref_dyn = ase_spin.SuzukiTrotter(reference, 0.1 * units.fs, hbar=ase_spin.HBAR_LAMMPS)
+    held = ref_dyn._sync().s[pinned].copy()
+    _compare(frames, reference, ref_dyn, 10)
+    assert np.array_equal(ref_dyn._state.s[pinned], held)
+    assert np.abs(ase_spin.get_spins(reference)[pinned] - start).max() < 1e-15
+    # the pinned spins act on the others: without the constraint the run differs
+    free_run = _lammps_masses(_scene(cubic=True))
+    ase_spin.SuzukiTrotter(free_run, 0.1 * units.fs, hbar=ase_spin.HBAR_LAMMPS).run(40)
+    moved = ase_spin.get_spins(free_run) - ase_spin.get_spins(reference)
+    assert np.abs(moved[free]).max() > 1e-6

@@ -441,9 +441,9 @@ def test_a_solve_stopped_by_a_non_finite_field_names_the_atom():
     W = st.s.copy()
     W[5] = np.nan
     with pytest.raises(IntegrationError, match=r"non-finite spins \(atom 5"):
-        dyn._raise_not_converged(st.ops, W, 3, float("nan"), dyn._scale(dyn.dt), True)
+        dyn._raise_not_converged(st.ops, st.s, W, 3, float("nan"), True)
     with pytest.raises(SpinConvergenceError, match="did not converge"):
-        dyn._raise_not_converged(st.ops, st.s, 50, 1e-3, dyn._scale(dyn.dt), True)
+        dyn._raise_not_converged(st.ops, st.s, st.s, 50, 1e-3, True)
 
 
 def _full_fcc(dt_fs=1.0, n=3):

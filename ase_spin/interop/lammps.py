@@ -31,6 +31,7 @@ from ase import units
 
 from ..calculator import SpinLatticeCalculator
 from ..constants import HBAR_LAMMPS
+from ..constraints import lattice_constraints, pinned_spins
 from ..conventions import PHYSICAL
 from ..hamiltonian import Hamiltonian
 from ..md.base import SpinLatticeDynamics
@@ -290,6 +291,25 @@ def _attr(obj, names, default):
     return default
 
 
+#: The LAMMPS group of the atoms whose spins a FixSpins pins.
+PINNED_GROUP = "pinned_spins"
+
+
+def _id_ranges(ids):
+    """LAMMPS atom IDs (sorted, unique) as ``group ... id`` arguments, runs of
+    consecutive IDs as ``a:b``."""
+    parts = []
+    start = prev = None
+    for i in [int(x) for x in ids] + [None]:
+        if start is not None and i == prev + 1:
+            prev = i
+            continue
+        if start is not None:
+            parts.append(str(start) if start == prev else f"{start}:{prev}")
+        start = prev = i
+    return " ".join(parts)
+
+
 # -- the scene ----------------------------------------------------------------------
 
 def _scene_types(atoms, moments):
@@ -365,6 +385,10 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
         Positions, cell (any right-handed cell; rotated into LAMMPS's frame if not
         lower triangular), pbc (periodic: ``p``, else shrink-wrapped ``s``),
         masses (one per species), velocities, spins (``initial_magmoms`` (N, 3)).
+        A :class:`~ase_spin.FixSpins` constraint becomes the group
+        ``pinned_spins`` and ``fix pin_spins pinned_spins setforce/spin 0.0 0.0
+        0.0`` (LAMMPS's dump then shows fm = 0 for those atoms); other
+        constraints are refused.
     dynamics : ase_spin integrator, optional
         Its timestep, lattice mode and thermostat. SuzukiTrotter (Cayley,
         order 2) is LAMMPS's ``fix nve/spin`` step; CollectivePRK and other
@@ -402,10 +426,12 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
     thermo_interval = dump_interval if thermo_interval is None else int(thermo_interval)
     if dynamics is not None and dynamics.atoms is not atoms:
         raise ValueError("write_lammps: the integrator holds other Atoms than those given")
-    if atoms.constraints:
+    others = lattice_constraints(atoms)
+    if others:
         raise ValueError("write_lammps: constraints have no export yet "
-                         f"({', '.join(type(c).__name__ for c in atoms.constraints)}); remove "
+                         f"({', '.join(type(c).__name__ for c in others)}); remove "
                          "them, or add the matching LAMMPS fix to the deck by hand")
+    pinned = pinned_spins(atoms)
     notices = []
     dt, lattice, thermostat = _integrator(dynamics, timestep, lattice, notices)
     hamiltonian = _terms(hamiltonian, atoms)
@@ -442,6 +468,8 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
              "atom_modify map array sort 0 0.0", f"boundary {boundary}",
              f"read_data {data_name}", ""]
     deck += [f"group {types.group(s)} type {k + 1}" for k, s in enumerate(species)]
+    if pinned is not None:
+        deck.append(f"group {PINNED_GROUP} id {_id_ranges(np.flatnonzero(pinned) + 1)}")
     deck += [""] + _pair_commands(parts, directory)
     # after pair_coeff: the eam styles set each type's mass from the potential file
     # (CoAl.eam.alloy: Co 58.9332, ASE 58.933194), which would override the data file's
@@ -456,6 +484,14 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
             damp = 1.0 / thermostat["friction"] / PS
             deck.append(f"fix thermostat_lattice all langevin {number_text(thermostat['T'])} "
                         f"{number_text(thermostat['T'])} {number_text(damp)} {int(seed) + 1} zero yes")
+    if pinned is not None:
+        # FixSpins: nve/spin advances each spin in the field fm that the pair
+        # styles, the precession/spin and langevin/spin fixes and then this fix
+        # make (that order whatever the deck's); defined after those fixes, it
+        # also zeroes the fm the dump shows (their post_force order)
+        deck += [("# FixSpins: these spins keep their directions (fm = 0 in the dump, "
+                  "not −∂E/∂s)"),
+                 f"fix pin_spins {PINNED_GROUP} setforce/spin 0.0 0.0 0.0"]
     deck += [f"fix integrate all nve/spin lattice {lattice}", f"timestep {number_text(dt / PS)}", ""]
     deck += ["compute magnetisation all spin",
              "compute spin_state all property/atom sp spx spy spz fmx fmy fmz",

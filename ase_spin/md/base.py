@@ -27,6 +27,7 @@ from ase.md.md import MolecularDynamics
 from .._jit.threads import AdaptiveThreads
 from ..calculator import SpinLatticeCalculator
 from ..constants import HBAR, HBAR_LAMMPS
+from ..constraints import lattice_constraints, pinned_spins
 from ..conventions import PHYSICAL
 from ..io.progress import run_with_progress
 from ..io.trajectories import check_trajectory_target
@@ -257,12 +258,18 @@ class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynami
         self._calc = calc
         self.ev = ev
         spins, mu = split_moments(moments)
+        pinned = pinned_spins(atoms)
         self.masses = masses[:, None]
         self.magnetic = ev.any_magnetic and bool(ev.hamiltonian.spin_terms)
         self.frozen = self.frozen_lattice or self._all_fixed()
         q = real_array(atoms.positions, "positions").copy()
+        # the constraints on positions, forces and momenta (all but FixSpins),
+        # and the pinned spins (FixSpins: precession rate 0), as they are now
+        # (a change of the constraints brings a new state: _in_sync)
         st = State(q=q, p=momenta, s=np.ascontiguousarray(spins), mu=mu,
                    rate=self._precession_rates(mu), scales={}, EL=None,
+                   constraints=lattice_constraints(atoms), pinned=pinned,
+                   pinned_rows=None if pinned is None else np.flatnonzero(pinned & ev.magnetic),
                    EL_terms=None, VL=None, observables=None,
                    # rounding errors of the last updates (compensated summation)
                    carry_q=np.zeros_like(q), carry_p=np.zeros_like(q),
@@ -349,11 +356,18 @@ class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynami
 
     def _precession_rates(self, mu):
         """Per-spin factor r_i of the precession, ds_i/dt = r_i (σ/ħ) s_i × B_i:
-        1 (LAMMPS) or g/μ_i (a moment μ_i μB: the Landau–Lifshitz precession)."""
+        1 (LAMMPS) or g/μ_i (a moment μ_i μB: the Landau–Lifshitz precession);
+        0 for a spin pinned by :class:`~ase_spin.constraints.FixSpins` (every
+        spin update then leaves it as it is, to the bit: docs/dynamics.md,
+        "Pinned spins")."""
         if self.gyromagnetic == "lammps":
-            return np.ones_like(mu)
-        rate = np.zeros_like(mu)
-        np.divide(self.g, mu, out=rate, where=mu > 0.0)
+            rate = np.ones_like(mu)
+        else:
+            rate = np.zeros_like(mu)
+            np.divide(self.g, mu, out=rate, where=mu > 0.0)
+        pinned = pinned_spins(self.atoms)
+        if pinned is not None:
+            rate[pinned] = 0.0
         return rate
 
 
@@ -507,8 +521,8 @@ class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynami
                 it, ng = self._substep(gamma * self.dt, stage, want_energy and stage == last)
                 iterations += it
                 geometries += ng
-            if self.atoms.constraints:  # positions and momenta set by constraints: no carries
-                st = self._state
+            st = self._state
+            if st.constraints:  # positions and momenta set by constraints: no carries
                 for carry in (st.carry_q, st.carry_p, st.carry_s):
                     carry[:] = 0.0
             self._commit()  # checks that the state is finite first

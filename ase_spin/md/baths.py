@@ -279,7 +279,7 @@ class BathHalfSteps:
         m = self.masses[:, 0]
         dK = ornstein_uhlenbeck(st.p, new_key(self.rng) if key is None else key, m, c1, c2,
                                 self.fix_com, p)
-        if self.atoms.constraints:
+        if st.constraints:
             K0 = 0.5 * float(np.einsum("ij,ij->", st.p, st.p / self.masses))
             p = self._adjust_momenta(p, st.q)
             dK = 0.5 * float(np.einsum("ij,ij->", p, p / self.masses)) - K0

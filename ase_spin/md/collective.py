@@ -283,7 +283,7 @@ class CollectivePRK(SpinLatticeDynamics):
             # q̃ buffer other than the one compared with: no new arrays per
             # round (each is 24 bytes an atom at the step's peak memory)
             out = None
-            if qt_used is not None and not self.atoms.constraints:
+            if qt_used is not None and not st.constraints:
                 if spare is None or spare is qt_used:
                     spare = np.empty_like(q)
                 out = (spare, P, carry_q)

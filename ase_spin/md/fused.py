@@ -127,7 +127,7 @@ def _pieces(dyn):
     st = dyn._state
     ev = dyn.ev
     if (not threads.small() or st.ops_next is None or len(st.ops) != 1
-            or ev.neighbors is None or dyn.atoms.constraints or not dyn.half_lists):
+            or ev.neighbors is None or st.constraints or not dyn.half_lists):
         return None
     if not type(dyn).compiled_step:
         return None
@@ -398,7 +398,7 @@ def _frozen_runner(half):
 def _frozen_block(dyn, steps):
     """:func:`collective_block` for a frozen lattice."""
     st = dyn._state
-    if dyn.atoms.constraints or len(st.ops) != 1 or not st.ops[0].linear:
+    if st.constraints or len(st.ops) != 1 or not st.ops[0].linear:
         return 0, 0, 0, 0
     pairs, c = st.ops[0].linear_pairs(False)
     run = _frozen_runner(bool(pairs.half))

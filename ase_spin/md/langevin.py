@@ -12,6 +12,7 @@ from collections import deque
 import numpy as np
 from ase import units
 
+from ..constraints import lattice_constraints
 from ..validate import REQUIRED, flag, integer, real_scalar
 from . import kernels
 from .base import fastest_precession
@@ -292,7 +293,7 @@ class Langevin(BathHalfSteps, CollectivePRK):
         # (count), not the run's last step, no observer due after it.
         self._defer = (count and self.nsteps + 1 < getattr(self, "max_steps", 0)
                        and not self._observer_due(self.nsteps + 1)
-                       and not self.atoms.constraints)
+                       and not lattice_constraints(self.atoms))
         # keys this step takes may have been drawn with the last one's end
         # forces (_end_forces): the state before them is the one to go back to
         early = getattr(self._state, "early", None)
@@ -489,7 +490,9 @@ def relax_spins(atoms, *, fmax=1e-6, damping=1.0, timestep=None, steps=100_000,
     r"""Relax the spins to a (local) minimum of the energy at fixed positions:
     zero-temperature damped Landau–Lifshitz–Gilbert dynamics (:class:`Langevin`
     with T_s = 0, frozen lattice), the damped-precession path of each spin
-    towards its field, until every torque |s_i × B_i| ≤ ``fmax`` (eV).
+    towards its field, until every torque |s_i × B_i| ≤ ``fmax`` (eV). Spins
+    pinned by :class:`~ase_spin.constraints.FixSpins` stay as they are (their
+    torques are not counted): the fixed boundary of a domain wall, say.
 
     ``damping``: λ (1 is the fastest relaxation of a spin in a fixed field);
     ``timestep``: default :data:`RELAX_PHASE`·ħ(1+λ²)/max_i(r_i|B_i|) from the
@@ -523,7 +526,7 @@ def relax_spins(atoms, *, fmax=1e-6, damping=1.0, timestep=None, steps=100_000,
             dyn._checked_dt = dyn.dt
         st = dyn._sync()
         B = dyn._spin_energy_fields(energy=False).B if dyn.magnetic else np.zeros_like(st.s)
-        torque = _largest_torque(st.s, B)
+        torque = _largest_torque(st.s, B, st.pinned)
         if torque <= fmax:
             return 0
         if chosen:
@@ -540,7 +543,7 @@ def relax_spins(atoms, *, fmax=1e-6, damping=1.0, timestep=None, steps=100_000,
             # the run's last step ends with its closing bath, whose fields at
             # the spins it leaves are kept (st.EB): no evaluation of their own
             EB = st.EB if st.EB is not None else dyn._spin_energy_fields(energy=False)
-            torque = _largest_torque(st.s, EB.B)
+            torque = _largest_torque(st.s, EB.B, st.pinned)
             if torque <= fmax:
                 return done
         raise RuntimeError(f"relax_spins: largest torque {torque:.3g} eV "
@@ -554,8 +557,11 @@ def relax_spins(atoms, *, fmax=1e-6, damping=1.0, timestep=None, steps=100_000,
         raise
 
 
-def _largest_torque(s, B):
-    """max_i |s_i × B_i| (eV), 0 without spins."""
+def _largest_torque(s, B, pinned=None):
+    """max_i |s_i × B_i| (eV) over the spins that move (``pinned``: a mask of
+    those FixSpins holds, or None), 0 without spins."""
+    if pinned is not None:
+        s, B = s[~pinned], B[~pinned]
     if not len(s):
         return 0.0
     t = np.cross(s, B)

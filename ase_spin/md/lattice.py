@@ -2,7 +2,8 @@
 spins to move, the compensated (Kahan) kick and drift, the one lattice
 evaluation of a step, the spin terms' lattice forces, the check that no atom
 moved too far, and the Atoms' constraints applied to positions, forces and
-momenta as ASE's VelocityVerlet applies them.
+momenta as ASE's VelocityVerlet applies them (all but FixSpins, which acts on
+the spins' precession rates: the state's ``constraints``).
 
 :class:`LatticeMotion` is a part of :class:`~ase_spin.md.base.SpinLatticeDynamics`
 (its methods read ``self.atoms``, ``self.ev``, ``self._state``, ``self.masses``).
@@ -74,7 +75,7 @@ class LatticeMotion:
         (:func:`kernels.kick_drift`, the same arithmetic), written into ``out``
         = (q̃, P, carry) buffers if given (none of them ``reference``)."""
         st = self._state
-        if self.atoms.constraints:
+        if st.constraints:
             P = np.empty_like(st.p)
             kernels.kick(st.p, 0.5 * h, self._md_forces(F, q), st.carry_p, P, st.carry_mid)
             qt, P, carry = self._drift(q, P, h)
@@ -121,24 +122,25 @@ class LatticeMotion:
         carry = np.empty_like(q)
         kernels.drift(q, P, self.masses[:, 0], h, st.carry_q, qt, carry)
         atoms = self.atoms
-        if atoms.constraints:
+        if st.constraints:
             # positions set by constraints: nothing to compensate
             carry[:] = 0.0
             st.carry_p[:] = 0.0
             atoms.arrays["positions"][:] = q
-            for c in atoms.constraints:
+            for c in st.constraints:
                 c.adjust_positions(atoms, qt)
             P = (qt - q) * self.masses / h
         return qt, P, carry
 
     def _md_forces(self, F, q):
         """Forces as ``atoms.get_forces(md=True)`` would give them."""
-        atoms = self.atoms
-        if not atoms.constraints:
+        constraints = self._state.constraints
+        if not constraints:
             return F
+        atoms = self.atoms
         F = F.copy()
         atoms.arrays["positions"][:] = q
-        for c in atoms.constraints:
+        for c in constraints:
             if hasattr(c, "redistribute_forces_md"):
                 c.redistribute_forces_md(atoms, F)
             if hasattr(c, "adjust_potential_energy"):
@@ -146,11 +148,12 @@ class LatticeMotion:
         return F
 
     def _adjust_momenta(self, p, q):
-        atoms = self.atoms
-        if not atoms.constraints:
+        constraints = self._state.constraints
+        if not constraints:
             return p
+        atoms = self.atoms
         atoms.arrays["positions"][:] = q
-        for c in atoms.constraints:
+        for c in constraints:
             if hasattr(c, "adjust_momenta"):
                 c.adjust_momenta(atoms, p)
         return p

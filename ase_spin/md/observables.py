@@ -104,7 +104,8 @@ class Observables:
         distribution. The second part of D (a spin's field depending on that
         spin: anisotropies, biquadratic exchange; zero for exchange, DMI,
         fields) is each operator's ``self_curvature``; without it D is twice
-        Σ s·B, Nurdin's and LAMMPS ``compute spin``'s denominator. (0, 0)
+        Σ s·B, Nurdin's and LAMMPS ``compute spin``'s denominator. Spins pinned
+        by :class:`~ase_spin.constraints.FixSpins` are left out (zero rows). (0, 0)
         without magnetic atoms.
 
         The identity holds for averages: D has no sign, and its mean goes to
@@ -118,9 +119,12 @@ class Observables:
         if "spin_temperature_sums" not in obs:
             st = self._sync()
             B = obs["B"]
-            num = float((np.cross(st.s, B) ** 2).sum())
-            curvature = sum(op.self_curvature(st.s) for op in st.ops)
-            den = 2.0 * float(np.einsum("ij,ij->", st.s, B)) - curvature
+            s = st.s
+            if st.pinned is not None:  # pinned spins (FixSpins) are no degrees of freedom
+                s = np.where(st.pinned[:, None], 0.0, s)
+            num = float((np.cross(s, B) ** 2).sum())
+            curvature = sum(op.self_curvature(s) for op in st.ops)
+            den = 2.0 * float(np.einsum("ij,ij->", s, B)) - curvature
             obs["spin_temperature_sums"] = (num, den)
         return obs["spin_temperature_sums"]
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from ..constraints import pinned_spins
 from ..spins import split_moments
 from ..terms.base import Want
 
@@ -29,7 +30,8 @@ def reference_solution(atoms, t_end, *, hbar=None, precession=None, gyromagnetic
     ``atoms.calc`` must be a SpinLatticeCalculator; the Atoms are not changed.
     ``hbar``, ``precession``, ``gyromagnetic`` and ``g`` default to the calculator's conventions,
     as in the integrators; ``gyromagnetic="moment"`` multiplies spin i's
-    precession by g/μ_i.
+    precession by g/μ_i; spins pinned by a FixSpins of ``atoms.constraints``
+    precess at rate 0 (other constraints are not applied: pass atoms without).
     """
     conventions = atoms.calc.hamiltonian.conventions
     hbar = conventions.hbar if hbar is None else hbar
@@ -41,6 +43,9 @@ def reference_solution(atoms, t_end, *, hbar=None, precession=None, gyromagnetic
     rate = np.ones((len(mu), 1))
     if gyromagnetic == "moment":
         rate[mu > 0, 0] = g / mu[mu > 0]
+    pinned = pinned_spins(atoms)
+    if pinned is not None:
+        rate[pinned, 0] = 0.0
     n = len(atoms)
     m = atoms.get_masses()[:, None]
     sigma = -1.0 if precession == "moment" else 1.0

@@ -193,17 +193,19 @@ def rotate_sweeps(row, nbr, J, s, tau, exact):
     """A forward then a backward sweep over the spins, in place: spin i is
     rotated about its current field, θ = τ_i B_i with B_i = Σ_j J_ij s_j from the
     spins as they are at that moment (so later spins see earlier updates).
-    Cayley rotation (LAMMPS's AdvanceSingleSpin) or the exact one. Returns the
+    Cayley rotation (LAMMPS's AdvanceSingleSpin) or the exact one. Spins with
+    τ_i = 0 (pinned: ase_spin.FixSpins) are not touched. Returns the
     largest |θ| (NaN if a field was not finite)."""
     n = len(row) - 1
     largest = 0.0
     for sweep in range(2):
         for a in range(n):
             i = a if sweep == 0 else n - 1 - a
-            if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+            c = tau[i]
+            # no spin; or pinned (rate 0): left as it is, to the bit
+            if (s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0) or c == 0.0:
                 continue
             tx, ty, tz = linear_pair_field(i, s, row, nbr, J)
-            c = tau[i]
             t2 = _rotate(s, i, c * tx, c * ty, c * tz, exact)
             if not t2 <= largest and largest == largest:  # a NaN stays
                 largest = t2
@@ -219,15 +221,15 @@ def _sweeps_sites(s, tau, exact, d0, d1, d2, d3, d4, d5):
     for sweep in range(2):
         for a in range(n):
             i = a if sweep == 0 else n - 1 - a
-            if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
-                continue
+            c = tau[i]
+            if (s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0) or c == 0.0:
+                continue  # no spin, or pinned (rate 0)
             t = f0(i, s, d0)  # noqa: F821 - bound per combination of terms
             t = _plus(t, f1(i, s, d1))  # noqa: F821
             t = _plus(t, f2(i, s, d2))  # noqa: F821
             t = _plus(t, f3(i, s, d3))  # noqa: F821
             t = _plus(t, f4(i, s, d4))  # noqa: F821
             tx, ty, tz = _plus(t, f5(i, s, d5))  # noqa: F821
-            c = tau[i]
             t2 = _rotate(s, i, c * tx, c * ty, c * tz, exact)
             if not t2 <= largest and largest == largest:  # a NaN stays
                 largest = t2

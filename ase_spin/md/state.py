@@ -27,7 +27,11 @@ class State:
     q, p, s, mu: positions, momenta, unit spins, moment magnitudes. FL: lattice
     forces at q. ops: the spin terms prepared at q (SpinOperators). EL, EL_terms: lattice
     energy when it was asked for. carry_*: rounding errors of the compensated
-    updates. Subclasses add their own fields in ``_prepare``.
+    updates. constraints: the Atoms' constraints on positions, forces and
+    momenta (all but FixSpins); pinned: the spins FixSpins pins (a boolean
+    (n,) array, or None), pinned_rows: those of them that are magnetic (their
+    moments are never written back). Subclasses add their own fields in
+    ``_prepare``.
     """
 
     def __init__(self, **fields):
@@ -189,6 +193,8 @@ class AtomsBond:
             if which >= 0:
                 self._raise_nonfinite(which, row)
             moments = spare[2] if self.magnetic else written[2]
+            if self.magnetic and st.pinned_rows is not None:
+                _keep_pinned(st.pinned_rows, written[2], mag, moments)
             self._spare = (written[0], written[1], written[2] if self.magnetic else spare[2])
             # masses, cell, numbers, constraints: as at the last sync (a step
             # does not change them)
@@ -205,12 +211,25 @@ class AtomsBond:
                 np.multiply(st.mu[:, None], st.s, out=now)  # in place, no temporary
             else:
                 _write(arrays, "initial_magmoms", st.mu[:, None] * st.s)
+            if st.pinned_rows is not None:
+                now = arrays["initial_magmoms"]
+                _keep_pinned(st.pinned_rows, self._written[2], now, now)
         st.observables = None
         self._remember_written()
 
 
 def _copy(a):
     return None if a is None else a.copy()
+
+
+def _keep_pinned(rows, before, *outs):
+    """The pinned spins' moments as the Atoms held them (``before``) into each
+    of ``outs``: never written back, they stay as the user set them, to the
+    bit (μ_i s_i, with s_i and μ_i split from them, may differ from them in
+    the last bit; a later sync splits them again the same way)."""
+    kept = before[rows]
+    for out in outs:
+        out[rows] = kept
 
 
 _F64 = np.dtype(np.float64)

@@ -70,6 +70,27 @@ def _reflect(i, s, wx, wy, wz, bx, by, bz, scale, stilde, carry, carry_out):
 
 
 @nb.njit(cache=True, inline="always")
+def pinned_row(i, s, cur, nxt, stilde, carry, carry_out):
+    """A spin of precession rate 0 (c_i = 0: pinned, ase_spin.FixSpins): its
+    midpoint and its end point are the spin itself, copied (the arithmetic of
+    a zero step would leave round-off in W_i, a −0.0 turned into 0.0 in s̃_i);
+    its carried rounding error stays as it was. Returns max |ΔW_i|."""
+    sx = s[i, 0]
+    sy = s[i, 1]
+    sz = s[i, 2]
+    stilde[i, 0] = sx
+    stilde[i, 1] = sy
+    stilde[i, 2] = sz
+    carry_out[i, 0] = carry[i, 0]
+    carry_out[i, 1] = carry[i, 1]
+    carry_out[i, 2] = carry[i, 2]
+    nxt[i, 0] = sx
+    nxt[i, 1] = sy
+    nxt[i, 2] = sz
+    return max(abs(sx - cur[i, 0]), abs(sy - cur[i, 1]), abs(sz - cur[i, 2]))
+
+
+@nb.njit(cache=True, inline="always")
 def update_row(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out):
     """One spin's Jacobi update given its midpoint field B̄_i = (bx, by, bz).
 
@@ -83,9 +104,12 @@ def update_row(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, carry_out):
     and |s̃_i| = |s_i| to round-off whatever residual the iteration stops with
     (κ, the length error a residual would cause, is computed from the increment
     d, without cancellation). s_i is the stored spin plus the rounding error
-    carried from the last step, and the sum is compensated (Kahan).
+    carried from the last step, and the sum is compensated (Kahan). A pinned
+    spin (c_i = 0) is copied (:func:`pinned_row`).
     Returns max |ΔW_i| over components.
     """
+    if scale[i] == 0.0:
+        return pinned_row(i, s, cur, nxt, stilde, carry, carry_out)
     wx = cur[i, 0]
     wy = cur[i, 1]
     wz = cur[i, 2]
@@ -170,13 +194,17 @@ def local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde, carry, c
     and E_i = W_i − g p only (:func:`local_midpoint_split`; E_i is left in
     ``stilde``), so it is made once a solve, not once a sweep. Where the local equation has no root, the Jacobi update
     of :func:`update_row`, end point included, the row marked in
-    ``jacobi_rows``. Returns max |ΔW_i| over components, or 4 (more than any
-    change of unit vectors: "not converged") where c_i|B̄_i| >
-    :data:`MAX_TURN` |s_i|."""
+    ``jacobi_rows``. A pinned spin (c_i = 0) is copied, end point included
+    (:func:`pinned_row`), and marked there too. Returns max |ΔW_i| over
+    components, or 4 (more than any change of unit vectors: "not converged")
+    where c_i|B̄_i| > :data:`MAX_TURN` |s_i|."""
+    c = scale[i]
+    if c == 0.0:
+        jacobi_rows[i] = True  # (its end point is written)
+        return pinned_row(i, s, cur, nxt, stilde, carry, carry_out)
     px = s[i, 0] + carry[i, 0]
     py = s[i, 1] + carry[i, 1]
     pz = s[i, 2] + carry[i, 2]
-    c = scale[i]
     jacobi_rows[i] = False
     if c * c * (bx * bx + by * by + bz * bz) > MAX_TURN * MAX_TURN * (px * px + py * py
                                                                       + pz * pz):
@@ -220,7 +248,8 @@ def end_points_of_rows(lo, hi, s, W, stilde, carry, carry_out, jacobi_rows):
     small for a small step and known to its own round-off. The sum is
     compensated as in :func:`_reflect`. |s̃_i|² = |p|² to round-off in the
     increment. No field, no division. Rows without spin, and those the Jacobi
-    update took (``jacobi_rows``: it wrote their end points), are skipped."""
+    update or :func:`pinned_row` took (``jacobi_rows``: they wrote their end
+    points), are skipped."""
     for i in range(lo, hi):
         sx = s[i, 0]
         sy = s[i, 1]
