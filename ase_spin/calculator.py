@@ -64,6 +64,26 @@ def _system_changes(old, new, tol, ignored):
     return changes
 
 
+#: Moment magnitudes closer than this (relative) to those bound are the same
+#: moments: an integrator writes μ_i s_i back with |s_i| = 1 to round-off, and
+#: |μ_i s_i| then differs from μ_i in its last bits (a few 1e-16).
+MAGNITUDE_RTOL = 1e-14
+
+
+def _same_magnitudes(bound, mu):
+    """Whether the magnitudes ``mu`` read from the Atoms are those the evaluator
+    is bound to, up to the last bits of a written-back μ_i s_i: then it is kept
+    as it is, and an integrator holding it goes on from its own state (reading
+    them afresh would change its moments in their last bits and make it start
+    over: a calculation between two runs, or in an observer, would change the
+    trajectory)."""
+    if np.array_equal(bound, mu):
+        return True
+    if bound.shape != mu.shape or not np.array_equal(bound > 0.0, mu > 0.0):
+        return False
+    return bool(np.all(np.abs(mu - bound) <= MAGNITUDE_RTOL * bound))
+
+
 class SpinLatticeCalculator(Calculator):
     """ASE calculator for a spin–lattice Hamiltonian.
 
@@ -182,7 +202,7 @@ class SpinLatticeCalculator(Calculator):
             if not (np.array_equal(ev.cell, atoms.cell.array)
                     and np.array_equal(ev.pbc, atoms.pbc)):
                 ev.set_cell(atoms.cell.array, atoms.pbc)
-            if not np.array_equal(ev.moments, mu):
+            if not _same_magnitudes(ev.moments, mu):
                 ev.set_moments(mu)
                 _warn_no_moments(self.hamiltonian, mu)
         return ev, moments
