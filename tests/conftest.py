@@ -45,6 +45,11 @@ _import_the_installed_copy()
 
 import ase_spin  # noqa: E402
 
+#: The folder holding the ase_spin the tests import (this tree, or the installed
+#: copy): what a test puts on PYTHONPATH for a child process, so that the child
+#: runs the same copy and loads the kernels compiled for it.
+PACKAGE_PATH = str(Path(ase_spin.__file__).resolve().parents[1])
+
 CO_LJ = dict(epsilon=0.4, sigma=2.2742, rc=4.7)
 CO_BS = (0.0446928, 0.003496, 1.4885)
 

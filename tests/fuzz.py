@@ -45,7 +45,7 @@ if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
 import ase_spin  # noqa: E402
-from conftest import interrupted_at  # noqa: E402
+from conftest import PACKAGE_PATH, interrupted_at  # noqa: E402
 from ase_spin import (BetheSlater, CollectivePRK, Cubic, Exchange, IntegrationError,  # noqa: E402
                       LennardJones, SpinLatticeCalculator, SuzukiTrotter)
 
@@ -801,7 +801,7 @@ def run_isolated(family, quick=False, timeout=1800):
     results = {}
     start = 0
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-        [str(HERE), str(HERE.parent), os.environ.get("PYTHONPATH", "")]))
+        [str(HERE), PACKAGE_PATH, os.environ.get("PYTHONPATH", "")]))
     while start < len(names):
         code = (f"import sys; sys.path.insert(0, {str(HERE)!r}); import fuzz; "
                 f"fuzz._child({family!r}, {start}, {quick!r})")

@@ -15,6 +15,7 @@ from ase.io import read
 import ase_spin
 from ase_spin.app import cli
 from ase_spin.app.cli import main
+from conftest import PACKAGE_PATH
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -415,7 +416,7 @@ def test_console_script_is_declared_and_the_module_runs(tmp_path):
     assert getattr(__import__(module, fromlist=[function]), function) is main
     assert any(d.startswith("tqdm") for d in project["dependencies"])
     path = write_input(tmp_path, steps=2, interval=1)
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = {**os.environ, "PYTHONPATH": PACKAGE_PATH}
     done = subprocess.run([sys.executable, "-m", "ase_spin.app.cli", "run", str(path)],
                           capture_output=True, text=True, env=env, timeout=600)
     assert done.returncode == 0, done.stderr
@@ -450,7 +451,7 @@ def test_first_use_compilation_is_announced_once_then_cached(tmp_path):
     prints nothing."""
     script = tmp_path / "notice.py"
     script.write_text(NOTICE_SCRIPT)
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    env = {**os.environ, "PYTHONPATH": PACKAGE_PATH, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
     env.pop("ASE_SPIN_QUIET_COMPILE", None)
     runs = [subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
                            env=env, timeout=600) for _ in range(2)]
@@ -695,7 +696,7 @@ def test_compile_command_fills_an_empty_cache_for_later_runs(tmp_path):
     """After ``ase-spin compile INPUT`` with an empty cache (two processes), a
     run of that scene compiles nothing (no first-use notice)."""
     path = write_input(tmp_path, steps=2, interval=1)
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    env = {**os.environ, "PYTHONPATH": PACKAGE_PATH, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
     env.pop("ASE_SPIN_QUIET_COMPILE", None)
     first = subprocess.run([sys.executable, "-m", "ase_spin.app.cli", "compile", str(path), str(path),
                             "--jobs", "2"], capture_output=True, text=True, env=env,

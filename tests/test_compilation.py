@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from conftest import PACKAGE_PATH
+
 ROOT = Path(__file__).resolve().parents[1]
 
 SCRIPT = r"""
@@ -44,7 +46,7 @@ def start_scan():
     """The scan of :data:`SCRIPT` in a child process, started (conftest.py
     starts it when the test run begins: its compilation then runs on a core the
     test process leaves free, and fills numba's cache for the tests after it)."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "ASE_SPIN_QUIET_COMPILE": "1"}
+    env = {**os.environ, "PYTHONPATH": PACKAGE_PATH, "ASE_SPIN_QUIET_COMPILE": "1"}
     return subprocess.Popen([sys.executable, "-c", SCRIPT], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env)
 

@@ -10,13 +10,14 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import PACKAGE_PATH
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = sorted((ROOT / "examples").glob("*.py"))
 
 
 def run(script, *args, cwd):
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
+    env = {**os.environ, "PYTHONPATH": PACKAGE_PATH, "MPLBACKEND": "Agg"}
     return subprocess.run([sys.executable, str(ROOT / "examples" / script), *args], cwd=cwd,
                           capture_output=True, text=True, env=env, timeout=900,
                           check=False)

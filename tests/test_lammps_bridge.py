@@ -19,6 +19,7 @@ from ase_spin.interop.lammps import LammpsIntegratorWarning, write_lammps
 from ase_spin.interop.lammps_dump import read_lammps_spin_dump
 from lammps_peer import EV_PER_FM, lammps_available, lammps_calculator, load_lammps
 from ase_spin.scenes import cone
+from conftest import PACKAGE_PATH
 
 needs_lammps = pytest.mark.skipif(not lammps_available(), reason="lammps not importable")
 
@@ -165,7 +166,7 @@ def test_mpi_run_follows_suzuki_trotter_in_the_sector_order(tmp_path):
     script = ("from lammps_peer import load_lammps\n"
               "lmp = load_lammps().lammps(cmdargs=['-log', 'log.lammps', '-screen', 'none', "
               "'-nocite'])\nlmp.file('in.spin')\nlmp.close()\n")
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([ROOT, os.path.dirname(__file__),
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([PACKAGE_PATH, os.path.dirname(__file__),
                                                       os.environ.get("PYTHONPATH", "")]),
                OMP_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
     done = subprocess.run([_mpiexec(), "-n", "2", sys.executable, "-c", script], cwd=tmp_path,
