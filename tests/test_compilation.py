@@ -47,8 +47,9 @@ def start_scan():
     starts it when the test run begins: its compilation then runs on a core the
     test process leaves free, and fills numba's cache for the tests after it)."""
     env = {**os.environ, "PYTHONPATH": PACKAGE_PATH, "ASE_SPIN_QUIET_COMPILE": "1"}
+    # run from the folder of that copy: "-c" puts the working folder first on sys.path
     return subprocess.Popen([sys.executable, "-c", SCRIPT], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env)
+                            stderr=subprocess.PIPE, text=True, env=env, cwd=PACKAGE_PATH)
 
 
 #: The scan started by conftest.py, if it was (else the test starts it).
