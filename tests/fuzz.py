@@ -806,7 +806,7 @@ def run_isolated(family, quick=False, timeout=1800):
         code = (f"import sys; sys.path.insert(0, {str(HERE)!r}); import fuzz; "
                 f"fuzz._child({family!r}, {start}, {quick!r})")
         proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                              timeout=timeout, env=env)
+                              timeout=timeout, env=env, cwd=tempfile.gettempdir())
         last_started = None
         for line in proc.stdout.splitlines():
             try:

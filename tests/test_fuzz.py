@@ -6,12 +6,15 @@ crash fails the test instead of killing the run); ``-m slow`` runs the whole
 campaign (every interrupt point, every truncation byte, orders 2 and 4).
 """
 
+import os
 import subprocess
 import sys
+import tempfile
 
 import pytest
 
 import fuzz
+from conftest import PACKAGE_PATH
 
 FAMILIES = list(fuzz.families(quick=True))
 
@@ -43,7 +46,10 @@ def test_hypothesis_spins():
 def test_hypothesis_cells_in_a_child_process(examples):
     code = (f"import sys; sys.path.insert(0, {str(fuzz.HERE)!r}); import fuzz; "
             f"print(fuzz.hypothesis_cells({examples}))")
+    # from a neutral folder, with the copy the tests import ("-c" puts the working
+    # folder first on sys.path: the tree's, when run from it)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=1200)
+                         timeout=1200, cwd=tempfile.gettempdir(),
+                         env={**os.environ, "PYTHONPATH": PACKAGE_PATH})
     assert out.returncode == 0, (out.returncode, out.stdout[-2000:], out.stderr[-4000:])
     assert int(out.stdout.split()[-1]) >= examples
