@@ -181,23 +181,107 @@ def interrupted_at(k, action):
         sys.settrace(None)
 
 
+#: Tests that are the first (often the only) to call a kernel no earlier test
+#: compiles, each taking seconds of numba compilation from a cold cache
+#: (measured with a numba:compile listener per test): colour-ordered and
+#: frozen-lattice solvers, fused steps of several combinations, the storage
+#: variants, the examples' scenes.
+COMPILE_AHEAD = (
+    "test_midpoint_solver.py",
+    "test_small_systems.py",
+    "test_exchange_storage.py",
+    "test_golden.py",
+    "test_examples.py",
+    "test_cli.py::test_dyn_run_progress_changes_nothing_but_the_display",
+    "test_cell_list.py::test_atoms_outside_the_cell_get_shifted_images",
+    "test_gaussian.py",
+    "test_langevin.py::test_bath_kernels_equal_the_spin_by_spin_formulas",
+    "test_langevin.py::test_pairs_sampled_between_shared_baths_are_canonical",
+    "test_ase_integration.py::test_emt_plus_exchange_derivatives_by_finite_differences",
+    "test_ase_integration.py::test_frames_with_a_frozen_lattice_and_an_open_system",
+    "test_ase_integration.py::test_timestep_warnings_name_the_value_in_fs",
+)
+
+#: The test that reads the scan of test_compilation (started with the run).
+SCAN = "test_each_kernel_is_compiled_for_one_set_of_argument_types"
+
+#: Set in the environment of the child that compiles ahead (it starts none).
+AHEAD_CHILD = "ASE_SPIN_TESTS_COMPILING_AHEAD"
+
+#: Child processes started for the run, stopped with it.
+children = []
+
+
+def _ahead_rank(item):
+    """The place in :data:`COMPILE_AHEAD` of the entry naming ``item``, or None."""
+    name = item.nodeid.split("/")[-1]
+    for rank, prefix in enumerate(COMPILE_AHEAD):
+        if name.startswith(prefix):
+            return rank
+    return None
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """The tests of :data:`COMPILE_AHEAD` run last, in its order, so that the
+    child compiling ahead (:func:`pytest_collection_finish`) has the run until
+    then to compile their kernels."""
+    ahead = sorted((item for item in items if _ahead_rank(item) is not None),
+                   key=_ahead_rank)
+    items[:] = [item for item in items if _ahead_rank(item) is None] + ahead
+
+
+def _idle_priority():
+    """This process runs only on a core nothing else wants (SCHED_IDLE, where
+    the system has it; else the lowest nice): a test's threaded kernels wait at
+    every parallel region for each of their threads, so a child that took
+    time slices from one of them would slow the run it is meant to speed up."""
+    import os
+
+    try:
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    except (AttributeError, OSError):
+        os.nice(19)
+
+
 def pytest_collection_finish(session):
-    """Start test_compilation's scan of every kernel (a child process that
-    compiles them for small and large systems) as soon as the run knows it will
-    test it: on two cores its compilation overlaps the tests before it, and
-    the tests after it load what it compiled from numba's cache."""
-    if any(item.name == "test_each_kernel_is_compiled_for_one_set_of_argument_types"
-           for item in session.items):
+    """A cold run compiles for minutes on one core while the other waits. Two
+    child processes take the second core: test_compilation's scan of every
+    kernel (for small and large systems; its test reads the output), which
+    also compiles the kernels most tests share, and, on what is left idle
+    (:func:`_idle_priority`), the tests of :data:`COMPILE_AHEAD` this session
+    holds (their results unread), which compiles their kernels into numba's
+    disk cache before this run reaches them."""
+    import os
+    import subprocess
+
+    if os.environ.get(AHEAD_CHILD):
+        return
+    if any(item.name == SCAN for item in session.items):
         import test_compilation
 
         test_compilation.started.append(test_compilation.start_scan())
+        children.append(test_compilation.started[-1])
+    ids = [item.nodeid for item in session.items if _ahead_rank(item) is not None]
+    if ids:
+        env = {**os.environ, AHEAD_CHILD: "1", "ASE_SPIN_QUIET_COMPILE": "1"}
+        children.append(subprocess.Popen(
+            [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *ids],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
+            cwd=Path(__file__).resolve().parents[1], start_new_session=True,
+            preexec_fn=_idle_priority))
 
 
 def pytest_sessionfinish(session):
-    """A scan the run did not reach (stopped early, -x) is stopped with it."""
-    import sys
+    """The child the run did not wait for (stopped early, -x) is stopped with
+    it, its own children too."""
+    import os
+    import signal
 
     module = sys.modules.get("test_compilation")
-    for scan in getattr(module, "started", ()):
-        scan.kill()
-        scan.communicate()
+    for child in {*getattr(module, "started", ()), *children}:
+        if child.poll() is None:
+            try:
+                os.killpg(child.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        child.communicate()

@@ -21,6 +21,10 @@ __all__ = ["coupled_step", "run_steps", "run_frozen_steps", "both_lattice", "no_
 
 DONE, GIVE_UP = 0, 1
 
+# Constants passed to another kernel are written np.int64(1), np.bool_(False):
+# numba types a bare 1 or False as a literal and compiles that kernel again for
+# it, beside the specialisation the general path already compiled.
+
 
 def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wnext, scale, tol,
           first_tol, floor, max_iter, theta, lattice, op_q, op_t, reference, radius,
@@ -92,7 +96,7 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
         qt = np.empty_like(q)
         carry_qt = np.empty_like(q)
         moved, atom, apart, largest = kick_drift(  # noqa: F821
-            1, p, 0.5 * h, F, carry_p, P, carry_mid, q, m, h, carry_q, qt, carry_qt, qt_used)
+            np.int64(1), p, 0.5 * h, F, carry_p, P, carry_mid, q, m, h, carry_q, qt, carry_qt, qt_used)
         new_q = True  # as CollectivePRK: a new q̃ gets its couplings
         if first:
             if not moved <= radius:
@@ -125,7 +129,7 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
         if chooses:
             use_local = policy.auto_takes_local(one_sweep, theta)
         its, delta, status, which, measured, moved_w = solve_half(  # noqa: F821
-            1, row, nbr, c, s, W, Wnext, stilde, scale, use_tol, floor, max_iter,
+            np.int64(1), row, nbr, c, s, W, Wnext, stilde, scale, use_tol, floor, max_iter,
             policy.start_contraction(theta), carry_s, carry, memory, use_local, field)
         if status == kernels.NOT_CONVERGED or policy.gives_up(its, measured, switch):
             return (GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
@@ -357,13 +361,13 @@ def run_frozen_steps(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, m
                     failed = True
                     break
                 its, delta, status, which, measured, moved = solve_full(  # noqa: F821
-                    1, full_row, full_nbr, full_c, s, W, Wnext, stilde, scales[stage], tol,
+                    np.int64(1), full_row, full_nbr, full_c, s, W, Wnext, stilde, scales[stage], tol,
                     floor, max_iter[stage], policy.start_contraction(theta[stage]), carry_s,
                     carry,
                     memory[stage], use_local, no_field, order, starts)
             else:
                 its, delta, status, which, measured, moved = solve(  # noqa: F821
-                    1, row, nbr, c, s, W, Wnext, stilde, scales[stage], tol, floor,
+                    np.int64(1), row, nbr, c, s, W, Wnext, stilde, scales[stage], tol, floor,
                     max_iter[stage], policy.start_contraction(theta[stage]), carry_s, carry,
                     memory[stage], use_local, no_field)
             if status == kernels.NOT_CONVERGED or policy.gives_up(its, measured, switch[stage]):

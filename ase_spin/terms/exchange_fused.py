@@ -29,7 +29,8 @@ def exchange_forces(W, data, F):
     nthreads, row, nbr, image, images, J, G, Jbar, offset, params = data
     _forces_pass_serial(nthreads, row, nbr, image, images, J, np.zeros(0), G,
                         np.zeros((0, 3)), W, W, offset, np.zeros((0, 3)), F, np.zeros(0),
-                        False, True, False, False, False)
+                        np.bool_(False), np.bool_(True), np.bool_(False), np.bool_(False),
+                        np.bool_(False))  # not literals: see md/fused_skeletons.py
 
 
 _forces_two_serial = forces_two_pass.serial

@@ -255,7 +255,8 @@ def _lj_forces(positions, data, forces):
     chunks of ``data``): the term's piece of the fused step."""
     nthreads, row, nbr, image, images, types, table = data
     _lj_serial(nthreads, positions, row, nbr, image, images, types, table, forces,
-               np.zeros(0), True, False, False, False)
+               np.zeros(0), np.bool_(True), np.bool_(False), np.bool_(False),
+               np.bool_(False))  # not literals: see md/fused_skeletons.py
 
 
 _lj_parallel = _lj_kernel.parallel
@@ -267,4 +268,5 @@ def _lj_forces_threaded(positions, data, forces):
     bits): the piece of the fused step above the tiny systems."""
     nthreads, row, nbr, image, images, types, table = data
     _lj_parallel(nthreads, positions, row, nbr, image, images, types, table, forces,
-                 np.zeros(0), True, False, False, False)
+                 np.zeros(0), np.bool_(True), np.bool_(False), np.bool_(False),
+               np.bool_(False))  # not literals: see md/fused_skeletons.py
