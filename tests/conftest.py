@@ -230,17 +230,18 @@ def pytest_collection_modifyitems(session, config, items):
     items[:] = [item for item in items if _ahead_rank(item) is None] + ahead
 
 
-def _idle_priority():
-    """This process runs only on a core nothing else wants (SCHED_IDLE, where
-    the system has it; else the lowest nice): a test's threaded kernels wait at
-    every parallel region for each of their threads, so a child that took
-    time slices from one of them would slow the run it is meant to speed up."""
-    import os
-
-    try:
-        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
-    except (AttributeError, OSError):
-        os.nice(19)
+#: Runs the command in its arguments at idle priority (SCHED_IDLE where the
+#: system has it, else the lowest nice): a test's threaded kernels wait at every
+#: parallel region for each of their threads, so a child that took time slices
+#: from one of them would slow the run it is meant to speed up.
+IDLE = """
+import os, sys
+try:
+    os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+except (AttributeError, OSError):
+    os.nice(19)
+os.execv(sys.argv[1], sys.argv[1:])
+"""
 
 
 def pytest_collection_finish(session):
@@ -248,7 +249,7 @@ def pytest_collection_finish(session):
     child processes take the second core: test_compilation's scan of every
     kernel (for small and large systems; its test reads the output), which
     also compiles the kernels most tests share, and, on what is left idle
-    (:func:`_idle_priority`), the tests of :data:`COMPILE_AHEAD` this session
+    (:data:`IDLE`), the tests of :data:`COMPILE_AHEAD` this session
     holds (their results unread), which compiles their kernels into numba's
     disk cache before this run reaches them."""
     import os
@@ -265,10 +266,10 @@ def pytest_collection_finish(session):
     if ids:
         env = {**os.environ, AHEAD_CHILD: "1", "ASE_SPIN_QUIET_COMPILE": "1"}
         children.append(subprocess.Popen(
-            [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *ids],
+            [sys.executable, "-c", IDLE, sys.executable, "-m", "pytest", "-q", "-p",
+             "no:cacheprovider", *ids],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
-            cwd=Path(__file__).resolve().parents[1], start_new_session=True,
-            preexec_fn=_idle_priority))
+            cwd=Path(__file__).resolve().parents[1], start_new_session=True))
 
 
 def pytest_sessionfinish(session):

@@ -57,7 +57,7 @@ def scan_command():
 def start_scan():
     argv, env, cwd = scan_command()
     return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=env, cwd=cwd)
+                            env=env, cwd=cwd, start_new_session=True)
 
 
 #: The scan started by conftest.py, if it was (else the test starts it).
