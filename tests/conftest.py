@@ -224,22 +224,22 @@ def _ahead_rank(item):
 def pytest_collection_modifyitems(session, config, items):
     """The tests of :data:`COMPILE_AHEAD` run last, in its order, so that the
     child compiling ahead (:func:`pytest_collection_finish`) has the run until
-    then to compile their kernels."""
+    then to compile their kernels; after them the test that reads the scan
+    (started with the run), which no test then waits for."""
     ahead = sorted((item for item in items if _ahead_rank(item) is not None),
                    key=_ahead_rank)
-    items[:] = [item for item in items if _ahead_rank(item) is None] + ahead
+    scan = [item for item in items if item.name == SCAN]
+    rest = [item for item in items if _ahead_rank(item) is None and item.name != SCAN]
+    items[:] = rest + ahead + scan
 
 
-#: Runs the command in its arguments at idle priority (SCHED_IDLE where the
-#: system has it, else the lowest nice): a test's threaded kernels wait at every
-#: parallel region for each of their threads, so a child that took time slices
-#: from one of them would slow the run it is meant to speed up.
+#: Runs the command in its arguments at the lowest priority (nice 19): a test's
+#: threaded kernels wait at every parallel region for each of their threads, so
+#: a child that took time slices from one of them would slow the run it is
+#: meant to speed up.
 IDLE = """
 import os, sys
-try:
-    os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
-except (AttributeError, OSError):
-    os.nice(19)
+os.nice(19)
 os.execv(sys.argv[1], sys.argv[1:])
 """
 
