@@ -12,11 +12,12 @@ from ase.build import bulk
 from .calculator import SpinLatticeCalculator
 from .spins import set_spins
 from .constants import MU_B_LAMMPS
-from .terms import BetheSlater, Cubic, Exchange, LennardJones, UniaxialAnisotropy, Zeeman
+from .terms import (DMI, BetheSlater, BiquadraticExchange, Cubic, CubicAnisotropy, Exchange,
+                    LennardJones, ShellExchange, UniaxialAnisotropy, Zeeman)
 from .validate import ImplausibleParameterWarning
 
 __all__ = ["paper_chain", "paper_chain_terms", "fcc_cobalt", "fcc_cobalt_terms", "cone",
-           "field_anisotropy_terms", "FIELD_ANISOTROPY_LAMMPS"]
+           "field_anisotropy_terms", "other_spin_terms", "FIELD_ANISOTROPY_LAMMPS"]
 
 
 def paper_chain_terms():
@@ -73,6 +74,18 @@ def field_anisotropy_terms():
     the work–precision and long-run comparisons (``fcc_cobalt(extra=...)``)."""
     return [Zeeman(10.0, [0.0, 0.0, 1.0], g=2.0, mu_B=MU_B_LAMMPS),
             UniaxialAnisotropy(0.01, [1.0, 0.0, 0.0])]
+
+
+def other_spin_terms():
+    """Every other spin term the package has, beside fcc_cobalt's exchange: the
+    field and anisotropy of :func:`field_anisotropy_terms`, a cubic
+    anisotropy, interfacial DMI, biquadratic exchange and shell exchange (the
+    set ``ase-spin compile`` compiles every term's kernels with)."""
+    return [*field_anisotropy_terms(), CubicAnisotropy(0.002, 0.001),
+            DMI(0.003, [0.0, 0.0, 1.0], rc=2.6),
+            BiquadraticExchange(BetheSlater(0.01, 0.001, 1.5), BetheSlater(0.002, 0.0005, 1.5),
+                                rc=2.6),
+            ShellExchange([(2.503, 0.02), (3.54, 0.004)], tol=0.2)]
 
 
 def fcc_cobalt(n=5, temperature_K=100.0, cone_deg=30.0, seed=0, magnitude=1.72, extra=(),

@@ -13,8 +13,10 @@ Without input files it runs a built-in set: fcc Co with Lennard-Jones and
 Bethe–Slater exchange, alone and with a Zeeman field and uniaxial anisotropy,
 at 108 atoms (the serial kernels of small systems) and 2048 atoms (the
 threaded ones), through ``CollectivePRK`` (orders 2 and 4, and with a frozen
-lattice), ``SuzukiTrotter`` and ``Langevin``. Other terms (EAM, DMI, ...)
-compile on first use, or give their input file.
+lattice), ``SuzukiTrotter`` and ``Langevin``; and every other spin term
+(cubic anisotropy, DMI, biquadratic and shell exchange) through
+``CollectivePRK`` and ``Langevin``, whose kernels then serve any combination
+of terms. EAM compiles on first use, or give an input file that uses it.
 
 The tasks after the first run in ``jobs`` processes at once (numba compiles
 on one core); the first one, alone, compiles the kernels every scene shares.
@@ -35,15 +37,16 @@ from .._jit import cache as compilation
 from .._jit.reductions import balanced_chunks
 from ..md import fused
 from ..neighbors import NeighborCache
-from ..scenes import fcc_cobalt, field_anisotropy_terms
+from ..scenes import fcc_cobalt, field_anisotropy_terms, other_spin_terms
 from .inputs import build_integrator, build_scene, in_folder, load_input
 
 __all__ = ["BUILTIN", "compile_kernels"]
 
 _BATH = {"temperature_K": 100.0, "spin_damping": 0.01, "friction": 0.01, "rng": 0}
 
-#: The built-in tasks: (label, cells per edge (4n³ atoms), with the field and
-#: anisotropy, integrator, keywords). The first runs alone (the kernels every
+#: The built-in tasks: (label, cells per edge (4n³ atoms), the spin terms beside
+#: exchange (False: none, True: field and anisotropy, "all": every other spin
+#: term, scenes.other_spin_terms), integrator, keywords). The first runs alone (the kernels every
 #: scene shares); then the small and the large systems, one process each
 #: (serial kernels for one, threaded for the other: little shared work).
 BUILTIN = [
@@ -55,12 +58,16 @@ BUILTIN = [
      ("SuzukiTrotter, 108 atoms", 3, False, "SuzukiTrotter", {}),
      ("Langevin, 108 atoms", 3, False, "Langevin", _BATH),
      ("CollectivePRK + field + anisotropy, 108 atoms", 3, True, "CollectivePRK", {}),
-     ("SuzukiTrotter + field + anisotropy, 108 atoms", 3, True, "SuzukiTrotter", {})],
+     ("SuzukiTrotter + field + anisotropy, 108 atoms", 3, True, "SuzukiTrotter", {}),
+     ("CollectivePRK + every spin term, 108 atoms", 3, "all", "CollectivePRK", {}),
+     ("Langevin + every spin term, 108 atoms", 3, "all", "Langevin", _BATH)],
     [("calculator, 2048 atoms", 8, False, None, {}),
      ("CollectivePRK, 2048 atoms", 8, False, "CollectivePRK", {}),
      ("CollectivePRK order 4, 2048 atoms", 8, False, "CollectivePRK", {"order": 4}),
      ("Langevin, 2048 atoms", 8, False, "Langevin", _BATH),
-     ("CollectivePRK + field + anisotropy, 2048 atoms", 8, True, "CollectivePRK", {})],
+     ("CollectivePRK + field + anisotropy, 2048 atoms", 8, True, "CollectivePRK", {}),
+     ("CollectivePRK + every spin term, 2048 atoms", 8, "all", "CollectivePRK", {}),
+     ("Langevin + every spin term, 2048 atoms", 8, "all", "Langevin", _BATH)],
 ]
 
 
@@ -105,7 +112,8 @@ def _builtin(task):
     from ase import units
 
     label, n, extra, integrator, keywords = task
-    atoms = fcc_cobalt(n, extra=field_anisotropy_terms() if extra else ())
+    atoms = fcc_cobalt(n, extra={False: (), True: field_anisotropy_terms(),
+                                 "all": other_spin_terms()}[extra])
     atoms.rattle(0.02, seed=1)
     dyn = None
     if integrator is not None:
