@@ -210,7 +210,8 @@ def compare(before, repeat):
 
 def after_compile():
     """A fresh copy: ``ase-spin compile`` (its built-in set), then the 108-atom
-    script, examples/demo.py and :data:`NEW_COMBINATION` in new processes."""
+    script, examples/demo.py, the command line on examples/co_fcc.toml and
+    :data:`NEW_COMBINATION` in new processes."""
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         copy = tmp / "copy"
@@ -226,6 +227,11 @@ def after_compile():
         rows.append(("108-atom script (built-in terms)", script["wall"], script["cpu"]))
         demo = run_demo(sys.executable, env, neutral)
         rows.append(("examples/demo.py", demo["wall"], demo["cpu"]))
+        shutil.copy(ROOT / "examples" / "co_fcc.toml", neutral)
+        _, wall, cpu = _timed([sys.executable, "-c",
+                               "from ase_spin.app.cli import main; main(['run', 'co_fcc.toml'])"],
+                              env, neutral)
+        rows.append(("ase-spin run examples/co_fcc.toml (500 atoms, 2000 steps)", wall, cpu))
         for label in ("new combination, first run", "new combination, second run"):
             done, wall, cpu = _timed([sys.executable, "-c", NEW_COMBINATION], env, neutral)
             rows.append((label, wall, cpu))
