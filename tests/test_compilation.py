@@ -18,7 +18,7 @@ from ase import units
 from numba.core.registry import CPUDispatcher
 import ase_spin
 from ase_spin.md import fused
-from ase_spin.scenes import fcc_cobalt, field_anisotropy_terms
+from ase_spin.scenes import fcc_cobalt, field_anisotropy_terms, other_spin_terms
 
 fused.FUSE_AFTER_STEPS = 0  # the fused step of small systems too, whatever the run's length
 
@@ -32,6 +32,12 @@ for n in (3, 8):  # 108 atoms (serial kernels), 2048 (threaded)
         ase_spin.SuzukiTrotter(atoms, 0.1 * units.fs).run(2)
         ase_spin.Langevin(atoms, 0.1 * units.fs, 100.0, spin_damping=0.01, friction=0.01,
                           rng=0).run(2)
+# every other spin term (per-term kernels), and a frozen lattice's compiled runs
+atoms = fcc_cobalt(3, extra=other_spin_terms())
+atoms.rattle(0.02, seed=1)
+ase_spin.CollectivePRK(atoms, 0.1 * units.fs).run(3)
+ase_spin.Langevin(atoms, 0.1 * units.fs, 100.0, spin_damping=0.01, friction=0.01, rng=0).run(2)
+ase_spin.CollectivePRK(fcc_cobalt(3), 0.1 * units.fs, lattice="frozen").run(4)
 signatures = {}
 for d in gc.get_objects():
     if isinstance(d, CPUDispatcher) and d.py_func.__module__.startswith("ase_spin"):

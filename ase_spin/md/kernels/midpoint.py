@@ -330,5 +330,6 @@ def coloured_sweep(row, nbr, Jbar, s, cur, nxt, scale, stilde, carry, carry_out,
         nxt[i, 0] = cur[i, 0]
         nxt[i, 1] = cur[i, 1]
         nxt[i, 2] = cur[i, 2]
-    return coloured_spins(0, len(order), row, nbr, Jbar, s, cur, nxt, scale, stilde, carry,
-                           carry_out, jacobi_rows, field, order)
+    # np.int64(0), not 0: a literal would compile coloured_spins a second time
+    return coloured_spins(np.int64(0), len(order), row, nbr, Jbar, s, cur, nxt, scale, stilde,
+                          carry, carry_out, jacobi_rows, field, order)
