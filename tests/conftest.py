@@ -261,7 +261,7 @@ def pytest_collection_finish(session):
         import test_compilation
 
         test_compilation.started.append(test_compilation.start_scan())
-        children.append(test_compilation.started[-1])
+        children.append(test_compilation.started[-1])  # (its test may pop it)
     ids = [item.nodeid for item in session.items if _ahead_rank(item) is not None]
     if ids:
         env = {**os.environ, AHEAD_CHILD: "1", "ASE_SPIN_QUIET_COMPILE": "1"}
@@ -278,8 +278,7 @@ def pytest_sessionfinish(session):
     import os
     import signal
 
-    module = sys.modules.get("test_compilation")
-    for child in {*getattr(module, "started", ()), *children}:
+    for child in children:
         if child.poll() is None:
             try:
                 os.killpg(child.pid, signal.SIGKILL)

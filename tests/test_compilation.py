@@ -51,19 +51,15 @@ print(json.dumps(signatures))
 SEVERAL = {"ase_spin.md.kernels.same"}
 
 
-def scan_command():
-    """(argv, environment, working folder) of the scan of :data:`SCRIPT` in a
-    child process (conftest.py starts it with the run, after its compilation
-    ahead; else the test starts it)."""
+def start_scan():
+    """The scan of :data:`SCRIPT` in a child process, started (conftest.py
+    starts it when the test run begins: its compilation then runs on a core the
+    test process leaves free, and fills numba's cache for the tests after it)."""
     env = {**os.environ, "PYTHONPATH": PACKAGE_PATH, "ASE_SPIN_QUIET_COMPILE": "1"}
     # run from the folder of that copy: "-c" puts the working folder first on sys.path
-    return [sys.executable, "-c", SCRIPT], env, PACKAGE_PATH
-
-
-def start_scan():
-    argv, env, cwd = scan_command()
-    return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=env, cwd=cwd, start_new_session=True)
+    return subprocess.Popen([sys.executable, "-c", SCRIPT], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env, cwd=PACKAGE_PATH,
+                            start_new_session=True)
 
 
 #: The scan started by conftest.py, if it was (else the test starts it).
@@ -72,9 +68,9 @@ started = []
 
 def test_each_kernel_is_compiled_for_one_set_of_argument_types():
     """Small and large systems, with and without single-site terms, through the
-    calculator and four integrators (the small system's fused step included):
-    every kernel but ``same`` is specialised
-    once (arguments normalised where they enter: contiguous arrays, float and
+    calculator and four integrators (the small system's fused step included),
+    every other spin term and a frozen lattice: every kernel but ``same`` is
+    specialised once (arguments normalised where they enter: contiguous arrays, float and
     int64 scalars), so a scene compiles each kernel once."""
     scan = started.pop() if started else start_scan()
     stdout, stderr = scan.communicate(timeout=1200)

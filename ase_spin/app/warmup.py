@@ -44,28 +44,30 @@ __all__ = ["BUILTIN", "compile_kernels"]
 
 _BATH = {"temperature_K": 100.0, "spin_damping": 0.01, "friction": 0.01, "rng": 0}
 
+#: The spin terms a built-in task adds to fcc Co's exchange, by name.
+EXTRA_TERMS = {"none": tuple, "field": field_anisotropy_terms, "all": other_spin_terms}
+
 #: The built-in tasks: (label, cells per edge (4n³ atoms), the spin terms beside
-#: exchange (False: none, True: field and anisotropy, "all": every other spin
-#: term, scenes.other_spin_terms), integrator, keywords). The first runs alone (the kernels every
-#: scene shares); then the small and the large systems, one process each
+#: exchange (a key of EXTRA_TERMS), integrator, keywords). The first runs alone
+#: (the kernels every scene shares); then the small and the large systems, one process each
 #: (serial kernels for one, threaded for the other: little shared work).
 BUILTIN = [
-    [("calculator, 108 atoms", 3, False, None, {})],
-    [("CollectivePRK, 108 atoms", 3, False, "CollectivePRK", {}),
-     ("CollectivePRK order 4, 108 atoms", 3, False, "CollectivePRK", {"order": 4}),
-     ("CollectivePRK, frozen lattice, 108 atoms", 3, False, "CollectivePRK",
+    [("calculator, 108 atoms", 3, "none", None, {})],
+    [("CollectivePRK, 108 atoms", 3, "none", "CollectivePRK", {}),
+     ("CollectivePRK order 4, 108 atoms", 3, "none", "CollectivePRK", {"order": 4}),
+     ("CollectivePRK, frozen lattice, 108 atoms", 3, "none", "CollectivePRK",
       {"lattice": "frozen"}),
-     ("SuzukiTrotter, 108 atoms", 3, False, "SuzukiTrotter", {}),
-     ("Langevin, 108 atoms", 3, False, "Langevin", _BATH),
-     ("CollectivePRK + field + anisotropy, 108 atoms", 3, True, "CollectivePRK", {}),
-     ("SuzukiTrotter + field + anisotropy, 108 atoms", 3, True, "SuzukiTrotter", {}),
+     ("SuzukiTrotter, 108 atoms", 3, "none", "SuzukiTrotter", {}),
+     ("Langevin, 108 atoms", 3, "none", "Langevin", _BATH),
+     ("CollectivePRK + field + anisotropy, 108 atoms", 3, "field", "CollectivePRK", {}),
+     ("SuzukiTrotter + field + anisotropy, 108 atoms", 3, "field", "SuzukiTrotter", {}),
      ("CollectivePRK + every spin term, 108 atoms", 3, "all", "CollectivePRK", {}),
      ("Langevin + every spin term, 108 atoms", 3, "all", "Langevin", _BATH)],
-    [("calculator, 2048 atoms", 8, False, None, {}),
-     ("CollectivePRK, 2048 atoms", 8, False, "CollectivePRK", {}),
-     ("CollectivePRK order 4, 2048 atoms", 8, False, "CollectivePRK", {"order": 4}),
-     ("Langevin, 2048 atoms", 8, False, "Langevin", _BATH),
-     ("CollectivePRK + field + anisotropy, 2048 atoms", 8, True, "CollectivePRK", {}),
+    [("calculator, 2048 atoms", 8, "none", None, {}),
+     ("CollectivePRK, 2048 atoms", 8, "none", "CollectivePRK", {}),
+     ("CollectivePRK order 4, 2048 atoms", 8, "none", "CollectivePRK", {"order": 4}),
+     ("Langevin, 2048 atoms", 8, "none", "Langevin", _BATH),
+     ("CollectivePRK + field + anisotropy, 2048 atoms", 8, "field", "CollectivePRK", {}),
      ("CollectivePRK + every spin term, 2048 atoms", 8, "all", "CollectivePRK", {}),
      ("Langevin + every spin term, 2048 atoms", 8, "all", "Langevin", _BATH)],
 ]
@@ -112,8 +114,7 @@ def _builtin(task):
     from ase import units
 
     label, n, extra, integrator, keywords = task
-    atoms = fcc_cobalt(n, extra={False: (), True: field_anisotropy_terms(),
-                                 "all": other_spin_terms()}[extra])
+    atoms = fcc_cobalt(n, extra=EXTRA_TERMS[extra]())
     atoms.rattle(0.02, seed=1)
     dyn = None
     if integrator is not None:

@@ -96,7 +96,8 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
         qt = np.empty_like(q)
         carry_qt = np.empty_like(q)
         moved, atom, apart, largest = kick_drift(  # noqa: F821
-            np.int64(1), p, 0.5 * h, F, carry_p, P, carry_mid, q, m, h, carry_q, qt, carry_qt, qt_used)
+            np.int64(1), p, 0.5 * h, F, carry_p, P, carry_mid, q, m, h, carry_q, qt, carry_qt,
+            qt_used)
         new_q = True  # as CollectivePRK: a new q̃ gets its couplings
         if first:
             if not moved <= radius:
@@ -361,10 +362,10 @@ def run_frozen_steps(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, m
                     failed = True
                     break
                 its, delta, status, which, measured, moved = solve_full(  # noqa: F821
-                    np.int64(1), full_row, full_nbr, full_c, s, W, Wnext, stilde, scales[stage], tol,
-                    floor, max_iter[stage], policy.start_contraction(theta[stage]), carry_s,
-                    carry,
-                    memory[stage], use_local, no_field, order, starts)
+                    np.int64(1), full_row, full_nbr, full_c, s, W, Wnext, stilde,
+                    scales[stage], tol, floor, max_iter[stage],
+                    policy.start_contraction(theta[stage]), carry_s, carry, memory[stage],
+                    use_local, no_field, order, starts)
             else:
                 its, delta, status, which, measured, moved = solve(  # noqa: F821
                     np.int64(1), row, nbr, c, s, W, Wnext, stilde, scales[stage], tol, floor,

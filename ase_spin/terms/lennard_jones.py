@@ -269,4 +269,4 @@ def _lj_forces_threaded(positions, data, forces):
     nthreads, row, nbr, image, images, types, table = data
     _lj_parallel(nthreads, positions, row, nbr, image, images, types, table, forces,
                  np.zeros(0), np.bool_(True), np.bool_(False), np.bool_(False),
-               np.bool_(False))  # not literals: see md/fused_skeletons.py
+                 np.bool_(False))  # not literals: see md/fused_skeletons.py
