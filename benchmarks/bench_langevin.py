@@ -15,8 +15,8 @@ alternately in rounds of ``steps`` steps each (so load changes on the machine
 hit both alike, and the sizes are interleaved round by round); printed: the
 machine, µs per atom-step (median over rounds), midpoint sweeps and geometry
 evaluations per step, and the ratio Langevin/NVE of the round medians with its
-range over rounds. No observer is attached: the bath between two steps is done
-in one piece (docs/thermostats.md).
+range over rounds. No observer is attached (one would add its own work, and change
+no number of the run: docs/dynamics.md, "Reproducibility").
 """
 
 from __future__ import annotations

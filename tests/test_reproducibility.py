@@ -1,11 +1,12 @@
 """Reproducibility: what observes a run and how it is cut into runs never
 change its trajectory (docs/dynamics.md, "Reproducibility").
 
-For each deterministic integrator (CollectivePRK on a moving and on a frozen
-lattice, and on the paper's chain, whose small size takes the compiled step and
-blocks of steps; SuzukiTrotter), with the thread count fixed and as the default
-leaves it, the positions, momenta and moments after 200 steps are the same to
-the bit (Langevin: not yet, docs/dynamics.md, "Reproducibility"):
+For each integrator (CollectivePRK on a moving and on a frozen lattice, and on
+the paper's chain, whose small size takes the compiled step and blocks of
+steps; SuzukiTrotter; Langevin with a fixed seed, with exchange alone and
+with a field and an anisotropy), with the thread count fixed and as the
+default leaves it, the positions, momenta and moments after 200 steps are the
+same to the bit:
 
 - with and without a trajectory frame, a log line and an observer every 7
   steps, the observer reading every observable and calling the calculator
@@ -31,6 +32,11 @@ STEPS = 200
 FIXED = min(2, numba.config.NUMBA_NUM_THREADS)
 
 
+def _langevin(**kw):
+    return ase_spin.Langevin, dict(timestep=0.2 * units.fs, temperature_K=300.0,
+                                   spin_damping=0.05, friction=0.01 / units.fs, rng=42, **kw)
+
+
 #: name -> () -> (Atoms, integrator class, its keywords)
 SCENES = {
     "collective": lambda: (scenes.fcc_cobalt(3), ase_spin.CollectivePRK,
@@ -41,6 +47,9 @@ SCENES = {
                                  dict(timestep=0.01)),
     "suzuki_trotter": lambda: (scenes.fcc_cobalt(3), ase_spin.SuzukiTrotter,
                                dict(timestep=0.1 * units.fs)),
+    "langevin": lambda: (scenes.fcc_cobalt(3), *_langevin()),
+    "langevin_terms": lambda: (scenes.fcc_cobalt(3, extra=scenes.field_anisotropy_terms()),
+                               *_langevin()),
 }
 
 
@@ -114,6 +123,26 @@ def test_observers_and_chunks_change_no_bit(scene, threads, tmp_path):
         for name, a, b in zip(("positions", "momenta", "moments"), got, want):
             assert np.array_equal(a, b), (
                 f"{scene}, {variant}: {name} differ by {np.abs(a - b).max():.3g}")
+
+
+def test_a_seed_fixes_a_langevin_run_and_another_seed_changes_it(tmp_path):
+    """The same seed gives the same run (above, however it is observed); the
+    bath energy too, whether or not it was read in between; another seed
+    gives another run."""
+    def run(seed, read_between):
+        atoms, cls, kwargs = SCENES["langevin"]()
+        kwargs["rng"] = seed
+        dyn = cls(atoms, threads=FIXED, **kwargs)
+        if read_between:
+            dyn.attach(dyn.get_bath_energy, interval=3)
+        dyn.run(60)
+        return _final(atoms), dyn.get_bath_energy()
+
+    (a, ea), (b, eb), (c, _) = run(42, False), run(42, True), run(43, False)
+    for x, y in zip(a, b):
+        assert np.array_equal(x, y)
+    assert ea == eb
+    assert np.abs(a[2] - c[2]).max() > 1e-3
 
 
 def test_moments_written_back_keep_the_calculators_evaluator():

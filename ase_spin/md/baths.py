@@ -46,8 +46,8 @@ class BathHalfSteps:
     state, coefficients and random numbers are the integrator's)."""
 
     def _coefficients(self):
-        """κ_i h, σ_i of N(h) and of N(h/2), c_i of the predictor's half step
-        (cached per h, λ, T_s: the user may change them between runs)."""
+        """κ_i h, σ_i of N(h/2), c_i of the predictor's half step (cached per
+        h, λ, T_s: the user may change them between runs)."""
         st = self._state
         key = (self.dt, self.spin_damping, self.spin_temp)
         coef = st.bath_coefficients.get(key)
@@ -57,35 +57,39 @@ class BathHalfSteps:
             c = (0.5 * self.gammas[0] * self.dt * self.sigma / self.hbar) * st.rate
             if len(st.bath_coefficients) > 8:
                 st.bath_coefficients.clear()
-            coef = st.bath_coefficients[key] = (kappa_h, noise_amplitude(d_h),
-                                                noise_amplitude(0.5 * d_h), c)
+            coef = st.bath_coefficients[key] = (kappa_h, noise_amplitude(0.5 * d_h), c)
         return coef
 
     # -- the step -------------------------------------------------------------------
 
     def _bath_begins_early(self, op):
-        """Whether the next bath's first part is made with the step's end forces
-        (:meth:`_end_forces`; ``op`` the one spin operator at q̃, else None)."""
+        """Whether the closing bath half's spin move is made with the step's end
+        forces (:meth:`_end_forces`; ``op`` the one spin operator at q̃, else None)."""
         st = self._state
         return (st.field_out is not None and st.field_filled and self._spin_bath_on()
                 and op is not None and op.forces_with_field)
 
+    def _spin_key(self):
+        """(key, σ) of a noise move N(h/2): a fresh key with a bath at T_s > 0,
+        else none drawn and σ = 0."""
+        st = self._state
+        if self.spin_temp > 0.0:
+            return new_key(self.rng), self._coefficients()[1]
+        return np.uint64(0), st.no_damping
+
     def _begin_bath(self, s_new):
-        """y₀ = D(h/2) N(h) D(h/2) s̃ into the spare spins, its keys drawn as
-        :meth:`_opening_bath` would (lattice, then spins): (lattice key, y₀,
-        the rng state before the keys)."""
+        """The closing half's spin move m = N(h/2) D(h/2) s̃ about the field at
+        the step's end from its midpoint fields (``field_out``, 2B̄ − B(y₀)),
+        into a new array, its keys drawn as :meth:`_closing_bath` would
+        (lattice, then spins): (lattice key, m, the rng state before the keys)."""
         st = self._state
         rng_state = self.rng.bit_generator.state
         lattice_key = new_key(self.rng) if self._lattice_bath_on() else None
-        kappa_h, sig_h, _, _ = self._coefficients()
-        if self.spin_temp > 0.0:
-            key, sigma = new_key(self.rng), sig_h
-        else:
-            key, sigma = np.uint64(0), st.no_damping
-        y0 = st.s_spare
-        bath_block(s_new, y0, st.s_before, st.field_out, st.B_y0, 1.0, 0.5 * kappa_h, sigma,
-                   key, 0.5 * kappa_h, self.ev.magnetic)
-        return lattice_key, y0, rng_state
+        key, sigma = self._spin_key()
+        m = np.empty_like(s_new)
+        bath_block(s_new, m, st.s_before, st.field_out, st.B_y0, 1.0,
+                   0.5 * self._coefficients()[0], sigma, key, st.no_damping, self.ev.magnetic)
+        return lattice_key, m, rng_state
 
     def _noisy(self):
         """Does a bath with T > 0 act (the default ``tol`` is then NOISY_TOL)?"""
@@ -98,16 +102,13 @@ class BathHalfSteps:
     def _opening_bath(self):
         r"""The bath before the collective step: O_L(h/2) and, from the output
         point m, N(h/2) then D*(h/2) — the damping flow about the fields at its
-        *end* y (implicit: y₀ = D_{B(m)} c, y = D_{B(y₀)} c, c = N(h/2) m).
-        After a step whose closing half was put off (``pending``), the whole
-        bath between the two collective steps: O_L(h) and, in time order,
-        D(h/2) N(h) D*(h/2) (D: see :meth:`_closing_bath`), y₀ from the
-        fields at the bath's start — made already, with B(y₀), when the last
-        step's end forces were (:meth:`_end_forces`).
+        *end* y (implicit: y₀ = D_{B(m)} c, y = D_{B(y₀)} c, c = N(h/2) m). The
+        same at every step: B(m) is known from the step before (its closing
+        half, :meth:`_closing_bath`) or taken here, the same bits either way.
 
-        The bath energy E(y) − E(x) (x the spins at the bath's start) and the
-        predictor's field take one pass after the move, not a pass at y: for
-        the terms B = C s (``linear_pairs``; C symmetric, fixed positions)
+        The bath energy E(y) − E(x) and the predictor's field take one pass
+        after the move, not a pass at y: for the terms B = C s (``linear_pairs``;
+        C symmetric, fixed positions)
 
         .. math:: E(y) - E(x) = -x\cdot C\delta
                   - \tfrac12\,\delta\cdot C\delta, \qquad \delta = y - x,
@@ -119,39 +120,33 @@ class BathHalfSteps:
         last steps (3 midpoint sweeps instead of 4). C k and both forms come
         from one pass over the pairs
         (:func:`~ase_spin.md.kernels.linear_field_and_form`); other terms give
-        their energy at y from ``add``. The energy takes no field at x: that
-        field need only steer the damping (see :meth:`_closing_bath`)."""
+        their energy at y from ``add``. x is m, or, when the last closing half
+        left its energy uncounted (``bath_from``: exchange alone, see
+        :meth:`_closing_bath`), the spins x before that half: the forms then
+        count both halves. The forms never change C k: the trajectory is the
+        same either way."""
         st = self._state
-        pending, B0 = st.pending, st.pending_B0
-        st.pending, st.pending_B0 = False, None
-        early, st.early = getattr(st, "early", None), None
         st.B_y0_fresh = False
-        self._lattice_bath(self.dt if pending is not False else 0.5 * self.dt,
-                           None if early is None else early[0])
+        if st.bath_from is not None and not self._spin_bath_on():  # (λ set to 0 since)
+            self.bath_energy_spin += self._pending_bath_energy(st)
+            st.bath_from = None
+        ref, st.bath_from, st.bath_pending = st.bath_from, None, None
+        if ref is not None:  # (for a step that fails: see Langevin._step)
+            self._consumed = (st.q, st.s, ref)
+        self._lattice_bath(0.5 * self.dt)
         if not self._spin_bath_on():
             return
-        kappa_h, sig_h, sig_half, c = self._coefficients()
-        noisy = self.spin_temp > 0.0
-        if pending is not False:
-            start = pending
-            k1, sigma = 0.5 * kappa_h, sig_h
-        else:
-            start = st.EB if st.EB is not None else self._spin_energy_fields()
-            k1, sigma = st.no_damping, sig_half
+        kappa_h, _, c = self._coefficients()
+        start = st.EB if st.EB is not None else self._spin_energy_fields()
         mag = self.ev.magnetic
         x, y0, y = st.s, st.s_spare, st.s_spare2
-        if early is not None:  # y₀ and B(y₀) are here already (_end_forces)
-            B1 = early[2]
-        else:
-            key = new_key(self.rng) if noisy else np.uint64(0)
-            if not noisy:
-                sigma = st.no_damping
-            w = 0.0 if B0 is None else 1.0  # the field at the start, or 2B̄ − B(y₀)
-            bath_block(x, y0, st.s_before, start.B, start.B if B0 is None else B0, w, k1,
-                       sigma, key, 0.5 * kappa_h, mag)
-            # y₀ = D_{B0}(h/2) c; the fields at y₀ give the corrector
-            st.s = y0
-            B1 = self._spin_energy_fields(energy=False).B
+        key, sigma = self._spin_key()
+        # c = N(h/2) x into st.s_before, y₀ = D_{B(x)}(h/2) c
+        bath_block(x, y0, st.s_before, start.B, start.B, 0.0, st.no_damping, sigma, key,
+                   0.5 * kappa_h, mag)
+        # the fields at y₀ give the corrector
+        st.s = y0
+        B1 = self._spin_energy_fields(energy=False).B
         # x stays as it was until the forms below are taken
         st.s, st.s_spare, st.s_spare2 = y, x, y0
         st.carry_s[:] = 0.0  # the spins were replaced: no rounding error to carry
@@ -169,11 +164,13 @@ class BathHalfSteps:
         B = B1  # B(y₀) + C k, below
         form = cross = 0.0
         others = 0.0
+        if ref is None:
+            ref = x
         for op in st.ops:
             if op.linear:
                 pairs, coupling = op.linear_pairs()
                 f, g = kernels.linear_field_and_form(threads.count(), pairs.row, pairs.j,
-                                                     coupling, pairs.half, st.kick, y, x, B)
+                                                     coupling, pairs.half, st.kick, y, ref, B)
                 form += f
                 cross += g
             else:
@@ -183,14 +180,12 @@ class BathHalfSteps:
 
     def _closing_bath(self, midpoint_field=None):
         r"""The bath after the collective step: O_L(h/2), D(h/2) about the fields
-        at its start, N(h/2) — or nothing yet if the next step's opening half
-        takes over (see :meth:`_step`).
+        at its start x = s̃, N(h/2); the spins m it leaves are the output point,
+        and B(m) is kept for the next opening half.
 
-        Put off, the bath's first move D(h/2) needs the field at the step's
-        end x = s̃ only to steer the damping (the energy is taken from forms,
-        :meth:`_opening_bath`). With ``midpoint_field`` B̄ (the solve's
-        midpoint fields, B̄ = ½[C(q) + C(q̃)] W; one term B = C s, order 2) it
-        is
+        With ``midpoint_field`` B̄ (the solve's midpoint fields,
+        B̄ = ½[C(q) + C(q̃)] W; one term B = C s, order 2) the field at x is
+        taken without a pass over the pairs as
 
         .. math:: \hat{\mathbf B}(x) = 2\bar{\mathbf B} - \mathbf B(y_0)
                   = C(\tilde q)\,\tilde s + O(h^2)
@@ -198,40 +193,77 @@ class BathHalfSteps:
         (W = (s + s̃)/|s + s̃| = (s + s̃)/2 + O(h²), and
         ½[C(q) − C(q̃)](s̃ − s) = O(h²); B(y₀) = C(q) s up to the corrector's
         move): the damping about it errs by O(λh³) per step, within the
-        scheme's own local error, and saves a pass over the pairs."""
+        scheme's own local error. The move itself and B(m) are then made with
+        the step's end forces where their pass allows (:meth:`_end_forces`),
+        else here; and the spin energy this half puts in, E(m) − E(x), which
+        would take a pass at x, is counted by the next opening half together
+        with its own (``bath_from``), or when it is read
+        (:meth:`_pending_bath_energy`)."""
         st = self._state
+        early, st.early = st.early, None
         on = self._spin_bath_on()
-        if midpoint_field is not None:  # (put off: see _substep)
-            # B̂ is formed row by row in the next bath (bath_block's w = 1)
-            st.pending = st.EB = _SpinFields(np.nan, 0.0, midpoint_field, midpoint_field)
-            st.pending_B0 = st.B_y0
+        if early is not None:  # (begun with the end forces: _end_forces)
+            self._lattice_bath(0.5 * self.dt, early[0])
+            x, st.s = st.s, early[1]
+            st.EB = _SpinFields(np.nan, 0.0, early[2], early[2])
+            st.bath_from, st.bath_pending = x, None
+            st.carry_s[:] = 0.0
             return
-        # put off: the next opening half takes the exchange energy from the
-        # forms (see _opening_bath), not from E here
-        EB = self._spin_energy_fields(linear_energy=not self._defer) if on else None
-        if self._defer:
-            st.pending = EB
-            st.EB = EB
-            return
-        self._lattice_bath(0.5 * self.dt)
         if not on:
+            self._lattice_bath(0.5 * self.dt)
             return
-        kappa_h, _, sig_half, _ = self._coefficients()
-        sigma, key = sig_half, np.uint64(0)
-        if self.spin_temp > 0.0:
-            key = new_key(self.rng)
-        else:
-            sigma = st.no_damping
-        bath_block(st.s, st.s_spare, st.s_before, EB.B, EB.B, 0.0, 0.5 * kappa_h, sigma, key,
+        kappa_h = self._coefficients()[0]
+        x = st.s
+        m = np.empty_like(x)  # (a new array: see Langevin._step)
+        if midpoint_field is not None:
+            self._lattice_bath(0.5 * self.dt)
+            key, sigma = self._spin_key()
+            # B̂ is formed row by row (bath_block's w = 1)
+            bath_block(x, m, st.s_before, midpoint_field, st.B_y0, 1.0, 0.5 * kappa_h, sigma,
+                       key, st.no_damping, self.ev.magnetic)
+            st.s = m
+            st.carry_s[:] = 0.0
+            st.EB = self._spin_energy_fields(energy=False)
+            st.bath_from, st.bath_pending = x, None
+            return
+        EB = self._spin_energy_fields()
+        self._lattice_bath(0.5 * self.dt)
+        key, sigma = self._spin_key()
+        bath_block(x, m, st.s_before, EB.B, EB.B, 0.0, 0.5 * kappa_h, sigma, key,
                    st.no_damping, self.ev.magnetic)
-        st.s, st.s_spare = st.s_spare, st.s
+        st.s = m
         st.carry_s[:] = 0.0
         st.EB = self._spin_energy_fields()
         self.bath_energy_spin += st.EB.energy - EB.energy
 
-    def _spin_energy_fields(self, energy=True, linear_energy=True):
-        """:class:`_SpinFields` at the current spins: one pass (``linear_energy``
-        False: E_linear left NaN, for a caller that does not use it).
+    def _pending_bath_energy(self, st):
+        """The spin energy E(m) − E(x) the last closing half put in while it is
+        not counted yet (``bath_from`` = x, m the spins now; one spin operator
+        of the form B = C s): −½ m·B(m) + ½ x·C x, one pass over the pairs."""
+        Bx = np.zeros_like(st.bath_from)
+        for op in st.ops:
+            op.field(st.bath_from, Bx)
+        Bm = st.EB.B if st.EB is not None else None
+        if Bm is None:
+            Bm = np.zeros_like(st.s)
+            for op in st.ops:
+                op.field(st.s, Bm)
+        return float(0.5 * np.einsum("ij,ij->", st.bath_from, Bx)
+                     - 0.5 * np.einsum("ij,ij->", st.s, Bm))
+
+    def _spin_energy_change(self, q, m, x):
+        """E(m) − E(x) of the spin terms at positions q, from operators made
+        afresh (after a failed step, whose own may have moved on)."""
+        ops = self.ev.spin_operators(q, half=self.half_lists)
+        Bm, Bx = np.zeros_like(m), np.zeros_like(x)
+        for op in ops:
+            op.field(m, Bm)
+            op.field(x, Bx)
+        return float(0.5 * np.einsum("ij,ij->", x, Bx) - 0.5 * np.einsum("ij,ij->", m, Bm))
+
+    def _spin_energy_fields(self, energy=True):
+        """:class:`_SpinFields` at the current spins: one pass (``energy``
+        False: the fields only).
 
         Operators of the form B_i = Σ_j c_ij s_j (``linear_pairs``: exchange)
         give their fields alone, and their energy as −½ Σ_i s_i·B_i: the
@@ -251,9 +283,7 @@ class BathHalfSteps:
         E_linear = E_other = 0.0
         if len(others) < len(st.ops):
             linear = B.copy() if others else B
-            if not linear_energy:
-                E_linear = np.nan
-            elif energy:
+            if energy:
                 E_linear = -0.5 * float(np.einsum("ij,ij->", s, B))
         want = _EB if energy else _B
         for op in others:

@@ -12,7 +12,7 @@ from collections import deque
 import numpy as np
 from ase import units
 
-from ..constraints import lattice_constraints
+from .._jit import threads
 from ..validate import REQUIRED, flag, integer, real_scalar
 from . import kernels
 from .base import fastest_precession
@@ -140,13 +140,15 @@ class Langevin(BathHalfSteps, CollectivePRK):
     s_i ← (s_i + ζ_i)/|s_i + ζ_i| with ζ_i ⟂ s_i Gaussian of variance
     σ_i² = 2D_iτ(1 + 5D_iτ) per direction (:func:`noise_amplitude`: weak
     second order). Sampling is weak second order (measured, docs/benchmarks.md).
-    Between two steps with no output in between, the two bath halves are done
-    as one, O_L(h) and D(h/2) N(h) D*(h/2): equal in law to O(h³), three
-    passes over the spin terms per step; with exchange alone at order 2 one
-    (the field at the step's end from its midpoint fields:
-    :meth:`_closing_bath`; the fields at y⁰ in the pass of the step's end
-    forces: :meth:`_end_forces`). Every spin update is a rotation or a normalised
-    move: |s_i| stays 1 to round-off.
+    Every step is this whole step, whatever observes the run and however it
+    is cut into runs: its output point lies on the trajectory, and a seed
+    fixes the trajectory (docs/dynamics.md, "Reproducibility"). Four passes
+    over the spin terms per step; with exchange alone at order 2 two (the
+    field at the step's end from its midpoint fields, :meth:`_closing_bath`,
+    and the fields B(m) after the closing half in the pass of the step's end
+    forces, :meth:`_end_forces`; three where that pass is not the Python
+    step's: a frozen lattice, the compiled small-system step). Every spin
+    update is a rotation or a normalised move: |s_i| stays 1 to round-off.
 
     Parameters
     ----------
@@ -180,9 +182,11 @@ class Langevin(BathHalfSteps, CollectivePRK):
     rng : numpy Generator, int seed or None
         The random numbers: each bath move takes one 64-bit key from it and
         draws its Gaussian numbers inside the compiled kernels
-        (:mod:`ase_spin.md.gaussian`: the same for any thread count); a run
-        is reproduced by restoring ``dyn.rng.bit_generator.state`` and
-        keeping the output schedule (see docs/thermostats.md).
+        (:mod:`ase_spin.md.gaussian`: the same for any thread count), up
+        to four a step, in a fixed order. The same seed and start give the same
+        trajectory, to the bit, whatever observes the run or how it is cut
+        into runs; a run is continued by restoring
+        ``dyn.rng.bit_generator.state`` (see docs/thermostats.md).
     tol : float, optional
         The midpoint iteration's tolerance, as for :class:`CollectivePRK`;
         default :data:`NOISY_TOL` (1e-10) when a bath at T > 0 acts at
@@ -199,6 +203,10 @@ class Langevin(BathHalfSteps, CollectivePRK):
     # between steps: the compiled executor takes its coupled step alone
     compiled_predictor = False
     compiled_blocks = False
+    #: the field at a step's end for the closing bath half from the solve's
+    #: midpoint fields where it can (see _closing_bath); False: a pass over the
+    #: spin terms (tests/test_langevin.py compares the two)
+    _end_field_from_midpoint = True
 
     def __init__(self, atoms, timestep, temperature_K=REQUIRED, *, spin_damping=REQUIRED,
                  friction=REQUIRED, spin_temperature_K=None, hbar=None, precession=None,
@@ -253,10 +261,11 @@ class Langevin(BathHalfSteps, CollectivePRK):
         super()._prepare(st)
         n = len(st.s)
         st.EB = None  # _SpinFields at the current spins and q, if known
-        # after a step whose closing bath half was put off (no output between
-        # it and the next step): _SpinFields at the spins then, or None without
-        # spin bath; False when nothing is pending
-        st.pending = False
+        # the spins x at the start of the last closing bath half, while the
+        # spin energy it put in is not counted yet (see _closing_bath): the
+        # next opening half counts it with its own, from E(y) − E(x); else None
+        st.bath_from = None
+        st.bath_pending = None  # that energy, once computed for a reader
         # the predictor's history of midpoint remainders W − W₀ (see _predict)
         st.increments = deque(maxlen=4)
         st.increment_order = 0
@@ -277,38 +286,59 @@ class Langevin(BathHalfSteps, CollectivePRK):
         st.no_damping = np.zeros(n)
         # B(y₀) of the last opening bath, kept for the field at the step's end
         # (see _closing_bath), and whether it is this step's with exchange the
-        # only spin term; with a pending bath whose field is 2B̄ − B(y₀): that
-        # B(y₀), else None
+        # only spin term
         st.B_y0 = None
         st.B_y0_fresh = False
-        st.pending_B0 = None
-        # the next opening bath's first part, done with the last step's end
-        # forces (see _end_forces): (lattice key or None, y₀, B(y₀), the rng's
-        # state before their keys), or None
+        # this step's closing bath half begun with its end forces (see
+        # _end_forces): (lattice key or None, the spins m after it, B(m), the
+        # rng's state before their keys), or None
         st.early = None
 
+    def _sync(self):
+        """The base's, except that a state let go (the Atoms were changed)
+        first counts the spin energy its last closing bath half put in."""
+        if self._in_sync():
+            return self._state
+        st = self._state
+        if st is not None and st.bath_from is not None:
+            self.bath_energy_spin += self._pending_bath_energy(st)
+            st.bath_from = None
+        self._state = None
+        self._initialize()
+        return self._state
+
     def _step(self, count=False, synced=False):
-        # The closing bath half of this step may be merged into the opening
-        # half of the next when nobody sees the state in between: inside run()
-        # (count), not the run's last step, no observer due after it.
-        self._defer = (count and self.nsteps + 1 < getattr(self, "max_steps", 0)
-                       and not self._observer_due(self.nsteps + 1)
-                       and not lattice_constraints(self.atoms))
-        # keys this step takes may have been drawn with the last one's end
-        # forces (_end_forces): the state before them is the one to go back to
-        early = getattr(self._state, "early", None)
+        # Every step is the same whatever observes the run or how it is cut
+        # into runs: opening bath half, collective step, closing bath half, the
+        # keys drawn in that order (lattice, spins; opening, closing). What
+        # carries over to the next step (B at the output point, the energy the
+        # closing half put in, the predictor's history) changes no bit of it.
+        if not synced:  # (a state let go counts its bath energy here, see _sync)
+            self._rebase_clock()
+            self._sync()
+        st = self._state
+        self._consumed = None  # (q, m, x) of a pending bath energy the step took over
         saved = (self.bath_energy_lattice, self.bath_energy_spin,
-                 self.rng.bit_generator.state if early is None else early[3])
+                 self.rng.bit_generator.state)
         try:
-            super()._step(count, synced)
+            super()._step(count, synced=True)
         except BaseException:
             # the Atoms went back to the state before the step: so do the
-            # bath energies and the random numbers
+            # bath energies and the random numbers; the energy of the closing
+            # half before (not counted yet) is counted now
             self.bath_energy_lattice, self.bath_energy_spin = saved[:2]
             self.rng.bit_generator.state = saved[2]
+            pending = self._consumed
+            if pending is None and st is not None and st.bath_from is not None:
+                pending = (st.q, st.s, st.bath_from)
+            if pending is not None:
+                try:
+                    self.bath_energy_spin += self._spin_energy_change(*pending)
+                except Exception:  # noqa: BLE001 - the step's own error is the one to see
+                    pass
             raise
         finally:
-            self._defer = False
+            self._consumed = None
 
     def _substep(self, h, stage, want_energy):
         st = self._state
@@ -318,13 +348,14 @@ class Langevin(BathHalfSteps, CollectivePRK):
         st.B_start = st.B_next if stage == 0 else None
         st.B_next = None
         # the solve's midpoint fields give the field at the step's end when
-        # the closing bath is put off, exchange is the only spin term and the
-        # step has one stage (see _closing_bath)
+        # exchange is the only spin term and the step has one stage (see
+        # _closing_bath)
         field = None
-        if self._defer and st.B_y0_fresh and len(self.gammas) == 1:
+        if self._end_field_from_midpoint and st.B_y0_fresh and len(self.gammas) == 1:
             field = self._midpoint_field_buffer()
         st.field_out = field
         st.field_filled = False
+        st.early = None
         try:
             result = super()._substep(h, stage, want_energy)
         finally:
@@ -335,30 +366,30 @@ class Langevin(BathHalfSteps, CollectivePRK):
         return result
 
     def _end_forces(self, operators, W, s_new):
-        r"""The step's end forces; when the bath after it is put off with the
-        end field from the midpoint (:meth:`_closing_bath`: ``field_out``
-        filled, exchange alone), also the first part of that bath, which needs
-        nothing the rest of the step computes: y₀ = D(h/2) N(h) D(h/2) s̃
-        (:func:`bath_block`) and the fields B(y₀) at q̃, the positions the bath
-        acts at, in the same pass over the pairs as the forces at (q̃, W)
+        r"""The step's end forces; with the field at the step's end from the
+        midpoint (:meth:`_closing_bath`: ``field_out`` filled, exchange alone),
+        also the closing bath half's spin move, which needs nothing the rest
+        of the step computes: m = N(h/2) D(h/2) s̃ (:func:`bath_block`) and
+        the fields B(m) at q̃, the positions the bath acts at, in the same
+        pass over the pairs as the forces at (q̃, W)
         (:meth:`~ase_spin.terms.exchange.ExchangeOperator.forces_and_field`):
-        one pass fewer. The keys are drawn as :meth:`_opening_bath` would
+        one pass fewer. The keys are drawn as :meth:`_closing_bath` would
         (lattice, then spins): the same numbers, the same bits."""
         st = self._state
         op = operators[0] if len(operators) == 1 else None
         if not self._bath_begins_early(op):
             return super()._end_forces(operators, W, s_new)
-        lattice_key, y0, rng_state = self._begin_bath(s_new)
+        lattice_key, m, rng_state = self._begin_bath(s_new)
         F = st.FL.copy()
-        B1 = np.zeros_like(s_new)
-        op.forces_and_field(W, F, y0, B1)
-        st.early = (lattice_key, y0, B1, rng_state)
+        Bm = np.zeros_like(s_new)
+        op.forces_and_field(W, F, m, Bm)
+        st.early = (lattice_key, m, Bm, rng_state)
         return F
 
     def _round_forces(self, W, s_new):
-        """CollectivePRK's, with the next bath's first part (:meth:`_end_forces`)
+        """CollectivePRK's, with the closing bath's spin move (:meth:`_end_forces`)
         begun in the same pass too: the forces at (q, W) and at (q̃, W) and the
-        fields B(y₀) at q̃, one pass over the pairs."""
+        fields B(m) at q̃, one pass over the pairs."""
         st = self._state
         ops, there = st.ops, st.ops_next
         here = ops[0] if len(ops) == 1 else None
@@ -366,11 +397,11 @@ class Langevin(BathHalfSteps, CollectivePRK):
         if not (self._bath_begins_early(op) and here is not None and here.merges_forces
                 and here.pairs_with(op)):
             return super()._round_forces(W, s_new)
-        lattice_key, y0, rng_state = self._begin_bath(s_new)
+        lattice_key, m, rng_state = self._begin_bath(s_new)
         F = st.FL.copy()
-        B1 = np.zeros_like(s_new)
-        keep = here.forces_here_and_there(W, F, op, u=y0, field=B1)
-        return F, (keep, (lattice_key, y0, B1, rng_state))
+        Bm = np.zeros_like(s_new)
+        keep = here.forces_here_and_there(W, F, op, u=m, field=Bm)
+        return F, (keep, (lattice_key, m, Bm, rng_state))
 
     def _finish_round(self, pending):
         if len(pending) > 1:
@@ -431,7 +462,7 @@ class Langevin(BathHalfSteps, CollectivePRK):
         W = np.empty_like(st.s)
         if st.known is None or st.known.shape != W.shape:
             st.known = np.empty_like(W)
-        predict_midpoint(st.s, st.B_start, self._coefficients()[3], *R, coef, W, st.known)
+        predict_midpoint(st.s, st.B_start, self._coefficients()[2], *R, coef, W, st.known)
         st.known_for = st.s_start  # the explicit part of this start's midpoint is known
         return W
 
@@ -456,7 +487,7 @@ class Langevin(BathHalfSteps, CollectivePRK):
         if st.known_for is st.s_start:
             np.subtract(W, st.known, out=R)
         else:
-            midpoint_remainder(W, st.s_start, st.B_start, self._coefficients()[3], R)
+            midpoint_remainder(W, st.s_start, st.B_start, self._coefficients()[2], R)
         st.known_for = None
         if history and not self.spin_temp > 0.0:  # (a noisy bath: see _predict)
             st.increment_order = kernels.best_extrapolation_order(history, R, st.probe)
@@ -467,7 +498,15 @@ class Langevin(BathHalfSteps, CollectivePRK):
     def get_bath_energy(self):
         """Energy the baths have put into the system since the start (eV):
         the sum of the energy changes of every bath half step."""
-        return self.bath_energy_lattice + self.bath_energy_spin
+        pending = 0.0
+        if self._state is not None:
+            st = self._sync()
+            if st.bath_from is not None:
+                if st.bath_pending is None:
+                    with threads.threads_for(len(self.atoms)):
+                        st.bath_pending = self._pending_bath_energy(st)
+                pending = st.bath_pending
+        return self.bath_energy_lattice + self.bath_energy_spin + pending
 
     def get_conserved_energy(self):
         """E_tot − E_bath: constant but for the collective step's own (bounded)
