@@ -528,6 +528,12 @@ class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynami
             self._commit()  # checks that the state is finite first
             if count:
                 self.nsteps = nsteps + 1
+            # the statistics in one statement, inside the try: nothing of the
+            # step runs after it, so an interrupt is either in the step (all
+            # undone below) or after it (all done)
+            (self.iterations, self.geometry_evaluations, self.total_iterations,
+             self.total_steps) = (iterations, geometries, self.total_iterations + iterations,
+                                  self.total_steps + 1)
         except BaseException:
             # an error or an interrupt (Ctrl-C) anywhere in the step, the write-back
             # included: the Atoms go back to the state before it, whole
@@ -535,10 +541,6 @@ class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynami
             self.nsteps = nsteps
             self._restore(before)
             raise
-        self.iterations = iterations
-        self.geometry_evaluations = geometries
-        self.total_iterations += iterations
-        self.total_steps += 1
 
     def _substep(self, h, stage, want_energy):
         """One second-order step of size h on ``self._state``; returns (midpoint

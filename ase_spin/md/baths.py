@@ -130,9 +130,12 @@ class BathHalfSteps:
         if st.bath_from is not None and not self._spin_bath_on():  # (λ set to 0 since)
             self.bath_energy_spin += self._pending_bath_energy(st)
             st.bath_from = None
-        ref, st.bath_from, st.bath_pending = st.bath_from, None, None
+        ref = st.bath_from
         if ref is not None:  # (for a step that fails: see Langevin._step)
+            # taken over before it is cleared: an interrupt in between must
+            # find it in one place or the other
             self._consumed = (st.q, st.s, ref)
+        st.bath_from = st.bath_pending = None
         self._lattice_bath(0.5 * self.dt)
         if not self._spin_bath_on():
             return

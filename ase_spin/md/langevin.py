@@ -237,6 +237,51 @@ class Langevin(BathHalfSteps, CollectivePRK):
             logger = self.closelater(LangevinLogger(self, logfile))
             self.attach(logger, loginterval)
 
+    # the bath parameters, checked whenever they are set (between runs too:
+    # NaN or a negative value would switch a bath off without a word)
+
+    @property
+    def spin_damping(self):
+        """λ ≥ 0, dimensionless. May be changed between runs: the precession
+        rates r_i/(1+λ²) of the steps to come follow."""
+        return self._spin_damping
+
+    @spin_damping.setter
+    def spin_damping(self, value):
+        self._spin_damping = _non_negative(value, "spin_damping", "dimensionless")
+
+    @property
+    def fr(self):
+        """γ ≥ 0, the lattice bath's friction in 1/(ASE time) (ASE's name)."""
+        return self._friction
+
+    @fr.setter
+    def fr(self, value):
+        self._friction = _non_negative(value, "friction", "1/ASE time")
+
+    def set_friction(self, friction):
+        """New friction γ (1/(ASE time)) for the steps to come, as
+        ``ase.md.langevin.Langevin.set_friction``."""
+        self.fr = friction
+
+    @property
+    def temp(self):
+        """k_B T of the lattice bath (eV), as ASE's Langevin."""
+        return self._temp
+
+    @temp.setter
+    def temp(self, value):
+        self._temp = _non_negative(value, "temp (k_B T of the lattice bath)", "eV")
+
+    @property
+    def spin_temp(self):
+        """k_B T_s of the spin bath (eV)."""
+        return self._spin_temp
+
+    @spin_temp.setter
+    def spin_temp(self, value):
+        self._spin_temp = _non_negative(value, "spin_temp (k_B T of the spin bath)", "eV")
+
     def set_temperature(self, temperature_K, spin_temperature_K=None):
         """New bath temperatures (K) for the steps to come (spin bath: default
         the lattice's), as ``ase.md.langevin.Langevin.set_temperature``."""
@@ -260,6 +305,8 @@ class Langevin(BathHalfSteps, CollectivePRK):
     def _prepare(self, st):
         super()._prepare(st)
         n = len(st.s)
+        # the λ of st.rate's Gilbert factor: another λ set since lets the state go
+        st.rate_damping = self.spin_damping
         st.EB = None  # _SpinFields at the current spins and q, if known
         # the spins x at the start of the last closing bath half, while the
         # spin energy it put in is not counted yet (see _closing_bath): the
@@ -297,9 +344,9 @@ class Langevin(BathHalfSteps, CollectivePRK):
     def _sync(self):
         """The base's, except that a state let go (the Atoms were changed)
         first counts the spin energy its last closing bath half put in."""
-        if self._in_sync():
-            return self._state
         st = self._state
+        if self._in_sync() and st.rate_damping == self.spin_damping:
+            return st
         if st is not None and st.bath_from is not None:
             self.bath_energy_spin += self._pending_bath_energy(st)
             st.bath_from = None
@@ -331,6 +378,9 @@ class Langevin(BathHalfSteps, CollectivePRK):
             pending = self._consumed
             if pending is None and st is not None and st.bath_from is not None:
                 pending = (st.q, st.s, st.bath_from)
+                # counted here: the state may live on (an interrupt before the
+                # step began), and must not count it again
+                st.bath_from = st.bath_pending = None
             if pending is not None:
                 try:
                     self.bath_energy_spin += self._spin_energy_change(*pending)
@@ -520,7 +570,7 @@ class Langevin(BathHalfSteps, CollectivePRK):
 RELAX_PHASE = 0.2
 #: relax_spins checks the torque after steps 1, 2, 4, ..., RELAX_CHECK and then
 #: every RELAX_CHECK steps (and at its last step): between two checks the
-#: steps run as one ``dyn.run(k)``, the baths' half steps merged
+#: steps run as one ``dyn.run(k)``
 RELAX_CHECK = 32
 
 
