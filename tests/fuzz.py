@@ -676,6 +676,127 @@ def interrupt_campaign(cls, order, constrained, stride=1):
     return {"points": points, "mixed": mixed, "worst": worst}
 
 
+LANGEVIN = dict(temperature_K=400.0, spin_damping=0.2, friction=0.01 / units.fs)
+
+
+def _langevin(a, rng=11, **kw):
+    return ase_spin.Langevin(a, 2.5 * DT, **{**LANGEVIN, "rng": rng, **kw})
+
+
+def _unit_state(a):
+    """positions, momenta and unit spins (the midpoint solve's tolerance is on
+    unit spins)."""
+    m = np.asarray(a.arrays["initial_magmoms"], float)
+    return np.concatenate([a.positions.ravel(), a.get_momenta().ravel(),
+                           (m / np.linalg.norm(m, axis=1, keepdims=True)).ravel()])
+
+
+def langevin_interrupt_campaign(extra, stride=1):
+    """A KeyboardInterrupt at every ``stride``-th line executed in ase_spin
+    during a Langevin step (after two steps), then running on to step 6:
+    ``mixed`` counts points where the Atoms, nsteps, the generator and the
+    bath energy are not all before or all after the step; ``worst`` the
+    largest difference from the uninterrupted run (positions, momenta, unit
+    spins), ``worst_bath`` its bath energy's."""
+    def make():
+        a = scene()
+        if extra:
+            a.calc = SpinLatticeCalculator(terms() + [ase_spin.Zeeman(5.0, [0, 0, 1]),
+                                                      ase_spin.UniaxialAnisotropy(1e-3, [1, 0, 0])])
+        return _langevin(a)
+
+    def look(dyn):
+        return (_unit_state(dyn.atoms), dyn.rng.bit_generator.state, dyn.get_bath_energy())
+
+    ref = make()
+    ref.run(2)
+    marks = {2: look(ref)}
+    ref.run(1)
+    marks[3] = look(ref)
+    ref.run(3)
+    final, final_bath = _unit_state(ref.atoms), ref.get_bath_energy()
+    k = points = mixed = 0
+    worst = worst_bath = 0.0
+    while True:
+        k += stride
+        dyn = make()
+        dyn.run(2)
+        if interrupted_at(k, lambda: dyn.run(1)):
+            break
+        points += 1
+        s, rng_state, bath = look(dyn)
+        at = marks.get(dyn.nsteps)
+        if at is None or not np.array_equal(s, at[0]) or rng_state != at[1] or bath != at[2]:
+            mixed += 1
+            continue
+        dyn.run(6 - dyn.nsteps)
+        worst = max(worst, float(np.abs(_unit_state(dyn.atoms) - final).max()))
+        worst_bath = max(worst_bath, abs(dyn.get_bath_energy() - final_bath))
+    return {"points": points, "mixed": mixed, "worst": worst, "worst_bath": worst_bath}
+
+
+def family_langevin(stride=1):
+    """The thermostat: interrupts anywhere in a step, bath parameters changed
+    between runs (the run must go on as a new Langevin with them from the same
+    Atoms and generator), parameters set to impossible values as attributes
+    or given out of range."""
+    cases = []
+    for extra in (False, True):
+        def act(a, extra=extra):
+            return langevin_interrupt_campaign(extra, stride)
+
+        def check(result, a):
+            return (result["mixed"] == 0 and result["points"] > 0
+                    and result["worst"] <= 1e-9 and result["worst_bath"] <= 1e-9)
+        cases.append(Case("langevin", f"interrupts{' field+anisotropy' if extra else ''} "
+                          f"every {stride}", act, expect="result", check=check))
+
+    changes = {"spin_damping": ("spin_damping", 0.6), "friction": ("fr", 0.05 / units.fs),
+               "temperature": ("temp", 900.0 * units.kB),
+               "spin temperature": ("spin_temp", 50.0 * units.kB), "timestep": ("dt", 0.3 * DT)}
+    for name, (attr, value) in changes.items():
+        def act(a, attr=attr, value=value):
+            dyn = _langevin(a)
+            dyn.run(3)
+            setattr(dyn, attr, value)
+            rng_state = dyn.rng.bit_generator.state
+            copy_ = a.copy()
+            copy_.calc = SpinLatticeCalculator(copy.deepcopy(list(a.calc.hamiltonian.terms)))
+            dyn.run(3)
+            rng = np.random.default_rng()
+            rng.bit_generator.state = rng_state
+            kw = {"spin_damping": dyn.spin_damping, "friction": dyn.fr,
+                  "temperature_K": dyn.temp / units.kB,
+                  "spin_temperature_K": dyn.spin_temp / units.kB}
+            fresh = ase_spin.Langevin(copy_, dyn.dt, rng=rng, **kw)
+            fresh.run(3)
+            return float(np.abs(_unit_state(a) - _unit_state(copy_)).max())
+
+        cases.append(Case("langevin", f"{name} changed between runs", act, expect="result",
+                          check=lambda result, a: result <= 1e-9))
+
+    for attr in ("spin_damping", "fr", "temp", "spin_temp"):
+        for v in (math.nan, math.inf, -1.0, -0.0 - 1e-300, 1e300, "1", None):
+            def act(a, attr=attr, v=v):
+                dyn = _langevin(a)
+                setattr(dyn, attr, v)
+                dyn.run(1)
+                return state(a)
+            # (a friction of 1e300 is the overdamped limit: momenta redrawn each step)
+            cases.append(Case("langevin", f"dyn.{attr} = {v!r}", act,
+                              expect="either" if (attr, v) == ("fr", 1e300) else "error",
+                              keywords=("spin_damping", "friction", "temp", "real number")))
+    for key in ("temperature_K", "spin_temperature_K", "spin_damping", "friction"):
+        for v in (math.nan, -1.0, 1e300, 1e30, "300", True):
+            def act(a, key=key, v=v):
+                dyn = _langevin(a, **{key: v})
+                dyn.run(2)
+                return state(a)
+            cases.append(Case("langevin", f"Langevin({key}={v!r})", act, expect="either",
+                              keywords=(key,)))
+    return cases
+
+
 def family_files(stride=1):
     from ase.io import read
 
@@ -778,6 +899,7 @@ def families(quick=False):
                                         combos=[(CollectivePRK, 2, False),
                                                 (SuzukiTrotter, 2, True)] if quick else None),
         "files": family_files(stride=97 if quick else 1),
+        "langevin": family_langevin(stride=61 if quick else 1),
         "systems": family_systems(),
     }
 

@@ -1158,48 +1158,18 @@ def test_a_failed_step_keeps_the_bath_energy_of_the_step_before(monkeypatch):
 @pytest.mark.parametrize("extra", [False, True], ids=["exchange", "field_anisotropy"])
 def test_interrupt_anywhere_in_a_step_continues_the_run(extra):
     """A KeyboardInterrupt at the k-th line executed in ase_spin during a step
-    (every 29th k until the step completes): the Atoms, nsteps, the generator
-    and the bath energy are all before the step or all after it, and running
-    on reaches the uninterrupted run (to the midpoint iteration's tolerance:
-    the predictor's history is lost with the step), its bath energy too. With
-    exchange alone the closing half's energy is counted late (bath_from) and
-    its move made with the end forces: an interrupt between the two halves
-    must neither drop nor double it."""
-    from conftest import interrupted_at
+    (every 29th k until the step completes, tests/fuzz.py's campaign): the
+    Atoms, nsteps, the generator and the bath energy are all before the step
+    or all after it, and running on reaches the uninterrupted run (to the
+    midpoint iteration's tolerance: the predictor's history is lost with the
+    step), its bath energy too. With exchange alone the closing half's energy
+    is counted late (bath_from) and its move made with the end forces: an
+    interrupt between the two halves must neither drop nor double it."""
+    from fuzz import langevin_interrupt_campaign
 
-    def make():
-        atoms = (co_scene() if extra else
-                 fcc_cobalt(2, temperature_K=300.0, cone_deg=40.0))
-        return Langevin(atoms, 0.5 * units.fs, 400.0, spin_damping=0.2,
-                        friction=0.01 / units.fs, rng=11)
-
-    def snapshot(dyn):
-        a = dyn.atoms
-        return np.concatenate([a.positions.ravel(), a.get_momenta().ravel(),
-                               unit(a.get_initial_magnetic_moments()).ravel()])
-
-    ref = make()
-    ref.run(2)
-    before = (snapshot(ref), ref.rng.bit_generator.state)
-    ref.run(1)
-    after = (snapshot(ref), ref.rng.bit_generator.state)
-    ref.run(3)
-    final, final_bath = snapshot(ref), ref.get_bath_energy()
-    k, points = 0, {2: 0, 3: 0}
-    while True:
-        k += 29
-        dyn = make()
-        dyn.run(2)
-        if interrupted_at(k, lambda: dyn.run(1)):
-            break
-        now = (snapshot(dyn), dyn.rng.bit_generator.state)
-        at = before if dyn.nsteps == 2 else after
-        assert np.array_equal(now[0], at[0]) and now[1] == at[1], (k, dyn.nsteps)
-        points[dyn.nsteps] += 1
-        dyn.run(6 - dyn.nsteps)
-        np.testing.assert_allclose(snapshot(dyn), final, rtol=0, atol=10 * NOISY_TOL)
-        assert dyn.get_bath_energy() == pytest.approx(final_bath, rel=0, abs=1e-9), k
-    assert points[2] > 5, points
+    result = langevin_interrupt_campaign(extra, stride=29)
+    assert result["mixed"] == 0 and result["points"] > 20, result
+    assert result["worst"] <= 10 * NOISY_TOL and result["worst_bath"] <= 1e-9, result
 
 
 def test_bath_parameters_changed_between_runs_take_effect_and_are_checked():

@@ -54,11 +54,36 @@ def _rng(rng):
                     f"integer seed or None, got {type(rng).__name__}")
 
 
+#: The largest bath temperature (K) and spin damping accepted: far beyond any
+#: magnetic or atomic structure (k_B·10⁸ K ≈ 8.6 keV), and below where the
+#: noise amplitudes and 1 + λ² overflow.
+MAX_BATH_TEMPERATURE_K = 1e8
+MAX_SPIN_DAMPING = 1e6
+
+
 def _temperature(value, what):
     t = real_scalar(value, what)
     if t < 0.0:
         raise ValueError(f"{what} must be >= 0 K, got {t}")
+    if t > MAX_BATH_TEMPERATURE_K:
+        raise ValueError(f"{what} = {t:g} K is above {MAX_BATH_TEMPERATURE_K:g} K, where no "
+                         "magnetic or atomic structure survives: a value in the wrong unit?")
     return t
+
+
+def _kT(value, what):
+    """k_B T (eV) set as an attribute: checked as a temperature in K would be."""
+    x = _non_negative(value, what, "eV")
+    _temperature(x / units.kB, what + " / k_B")
+    return x
+
+
+def _damping(value):
+    x = _non_negative(value, "spin_damping", "dimensionless")
+    if x > MAX_SPIN_DAMPING:
+        raise ValueError(f"spin_damping = {x:g} is above {MAX_SPIN_DAMPING:g} (overdamped "
+                         "long before: the spins then barely move); typically 0.01 to 0.1")
+    return x
 
 
 #: What each required parameter of Langevin is, with typical values: the
@@ -219,8 +244,8 @@ class Langevin(BathHalfSteps, CollectivePRK):
         self.temp = _temperature(temperature_K, "temperature_K") * units.kB
         self.spin_temp = (self.temp if spin_temperature_K is None else
                           _temperature(spin_temperature_K, "spin_temperature_K") * units.kB)
-        self.spin_damping = _non_negative(spin_damping, "spin_damping", "dimensionless")
-        self.fr = _non_negative(friction, "friction", "1/ASE time")
+        self.spin_damping = spin_damping
+        self.fr = friction
         self.fix_com = flag(fixcm, "fixcm")
         self.rng = _rng(rng)
         if not real_scalar(timestep, "timestep") > 0.0:
@@ -248,7 +273,7 @@ class Langevin(BathHalfSteps, CollectivePRK):
 
     @spin_damping.setter
     def spin_damping(self, value):
-        self._spin_damping = _non_negative(value, "spin_damping", "dimensionless")
+        self._spin_damping = _damping(value)
 
     @property
     def fr(self):
@@ -271,7 +296,7 @@ class Langevin(BathHalfSteps, CollectivePRK):
 
     @temp.setter
     def temp(self, value):
-        self._temp = _non_negative(value, "temp (k_B T of the lattice bath)", "eV")
+        self._temp = _kT(value, "temp (k_B T of the lattice bath)")
 
     @property
     def spin_temp(self):
@@ -280,7 +305,7 @@ class Langevin(BathHalfSteps, CollectivePRK):
 
     @spin_temp.setter
     def spin_temp(self, value):
-        self._spin_temp = _non_negative(value, "spin_temp (k_B T of the spin bath)", "eV")
+        self._spin_temp = _kT(value, "spin_temp (k_B T of the spin bath)")
 
     def set_temperature(self, temperature_K, spin_temperature_K=None):
         """New bath temperatures (K) for the steps to come (spin bath: default
