@@ -192,6 +192,32 @@ def push_increments(ring, heads, counts, increments):
 
 
 @nb.njit(cache=True, inline="always")
+def tentative(theta, real, orders, whole, one_sweep):
+    """Copies of the per-stage values a step updates stage by stage: θ, the
+    predictor's order, the one-sweep choice, and a real and a whole number of
+    the runner's own (:func:`run_steps`: how far the second solve moved W and
+    the round the stage settled in; :func:`run_frozen_steps`: the index
+    order's contraction and the sweep order, policy.next_sweep_order's),
+    kept by :func:`keep_stages` once the whole step is taken."""
+    return theta.copy(), real.copy(), orders.copy(), whole.copy(), one_sweep.copy()
+
+
+@nb.njit(cache=True, inline="always")
+def keep_stages(new, theta, real, orders, whole, one_sweep, ring, heads, counts, increments):
+    """A whole step taken: each stage's values (those of :func:`tentative`)
+    become the step's ``new`` ones (a step not taken whole leaves them as
+    they were), and its increment W − s joins its history
+    (:func:`push_increments`)."""
+    new_theta, new_real, new_orders, new_whole, new_one_sweep = new
+    theta[:] = new_theta
+    real[:] = new_real
+    orders[:] = new_orders
+    whole[:] = new_whole
+    one_sweep[:] = new_one_sweep
+    push_increments(ring, heads, counts, increments)
+
+
+@nb.njit(cache=True, inline="always")
 def _newest(ring, stage, head, count, k):
     """The k-th newest increment of a stage's ring buffer (the newest where
     fewer are kept: as kernels.newest_first pads)."""
@@ -239,14 +265,9 @@ def run_steps(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry
     saved_p = np.empty_like(carry_p)
     increments = np.empty((nstages,) + s.shape)
     field = np.empty_like(s)  # the midpoint fields (not used here)
-    new_theta = theta.copy()
-    new_settle = settle.copy()
-    new_orders = orders.copy()
-    new_rounds = rounds.copy()
-    new_one_sweep = one_sweep.copy()
-    done = 0
-    sweeps = 0
-    last_sweeps = 0
+    new = tentative(theta, settle, orders, rounds, one_sweep)
+    new_theta, new_settle, new_orders, new_rounds, new_one_sweep = new
+    done = sweeps = last_sweeps = 0
     last_geometries = 0
     swapped = False
     failed = -1
@@ -289,13 +310,8 @@ def run_steps(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry
             carry_p[:] = saved_p
             kept_n[:] = 0  # tables of a history the step did not extend
             break
-        for stage in range(nstages):
-            theta[stage] = new_theta[stage]
-            settle[stage] = new_settle[stage]
-            orders[stage] = new_orders[stage]
-            rounds[stage] = new_rounds[stage]
-            one_sweep[stage] = new_one_sweep[stage]
-        push_increments(ring, heads, counts, increments)
+        keep_stages(new, theta, settle, orders, rounds, one_sweep, ring, heads, counts,
+                    increments)
         if nstages % 2 == 1:
             op_q, op_t = op_t, op_q
             swapped = not swapped
@@ -333,14 +349,9 @@ def run_frozen_steps(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, m
     no_field = np.zeros((0, 3))  # kernels.NO_FIELD: no midpoint fields wanted
     nstages = gammas.shape[0]
     increments = np.empty((nstages,) + s.shape)
-    new_theta = theta.copy()
-    new_orders = orders.copy()
-    new_one_sweep = one_sweep.copy()
-    new_sweep_order = sweep_order.copy()
-    new_theta_index = theta_index.copy()
-    done = 0
-    sweeps = 0
-    last_sweeps = 0
+    new = tentative(theta, theta_index, orders, sweep_order, one_sweep)
+    new_theta, new_theta_index, new_orders, new_sweep_order, new_one_sweep = new
+    done = sweeps = last_sweeps = 0
     for _ in range(steps):
         s0, cs0, W0 = s, carry_s, Wnext
         its_step = 0
@@ -394,13 +405,8 @@ def run_frozen_steps(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, m
             s, carry_s, Wnext = s0, cs0, W0
             kept_n[:] = 0  # tables of a history the step did not extend
             break
-        for stage in range(nstages):
-            theta[stage] = new_theta[stage]
-            orders[stage] = new_orders[stage]
-            one_sweep[stage] = new_one_sweep[stage]
-            sweep_order[stage] = new_sweep_order[stage]
-            theta_index[stage] = new_theta_index[stage]
-        push_increments(ring, heads, counts, increments)
+        keep_stages(new, theta, theta_index, orders, sweep_order, one_sweep, ring, heads, counts,
+                    increments)
         done += 1
         sweeps += its_step
         last_sweeps = its_step

@@ -27,9 +27,14 @@ __all__ = ["FIELD_ONLY", "FORCES_AND_FIELD", "spin_pass_kernel",
 #: compiled kernels, not a branch per pair: the G kernels' force loop is then
 #: the one that read G before g existed, as fast.
 _FORMED = False
-#: Read by :func:`_spin_pass_half` as a compile-time constant: None in the
-#: kernel for any request (the flags are arguments), or the flags (want_b,
-#: want_f, want_energy, want_energies, want_virial) themselves in its twins for
+#: Read by :func:`_spin_pass` as a compile-time constant: False in the
+#: kernels over a full pair list, True in their twins over a half list
+#: (``spin_pass_half_*``). One pass, two compiled kernels: each holds only its
+#: own list's scatter or gather and sums.
+_HALF = False
+#: Read by :func:`_spin_pass` as a compile-time constant: None in the
+#: kernels for any request (the flags are arguments), or the flags (want_b,
+#: want_f, want_energy, want_energies, want_virial) themselves in its half-list twins for
 #: the two requests of every step — forces alone (the integrators' force
 #: passes) and fields alone — whose loops then hold no branch on them
 #: (docs/benchmarks.md, "Why each fast path exists").
@@ -64,13 +69,20 @@ def _add_thread_sums(buf, i, col, base, out):
 
 def _spin_pass(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B, F, energies,
                want_b, want_f, want_energy, want_energies, want_virial):
-    """One pass over the exchange pairs for spins s (full list, gather into i),
-    w = s_i·s_j − c, G_ij = J'(r_ij) d_ij/r_ij read from ``G`` (or, in the
-    :func:`_formed_twin`, formed as g_ij d_ij), d_ij = (r_j − r_i) + S_ij
-    recomputed from the positions ``pos`` the operator was prepared at:
+    """One pass over the exchange pairs for spins s, w = s_i·s_j − c,
+    G_ij = J'(r_ij) d_ij/r_ij read from ``G`` (or, in the :func:`_formed_twin`,
+    formed as g_ij d_ij), d_ij = (r_j − r_i) + S_ij recomputed from the
+    positions ``pos`` the operator was prepared at. Over a full list (each
+    pair both ways, gathered into row i):
 
     B_i += Σ_j J_ij u_j,   F_i += −Σ_j w G_ij,
-    e_i += −½ Σ_j J_ij w,   W += −½ Σ_ij w G_ij ⊗ d_ij,
+    e_i += −½ Σ_j J_ij w,   W += −½ Σ_ij w G_ij ⊗ d_ij;
+
+    over a half list (:data:`_HALF`: each pair once, scattered into both rows
+    through per-thread buffers, summed in thread order):
+
+    B_i += J u_j, B_j += J u_i,   F_i −= w G, F_j += w G,
+    e_i, e_j −= ½ J w,   W −= w G ⊗ d;
 
     the field B for spins ``u`` (s itself but in :meth:`ExchangeOperator.forces_and_field`).
 
@@ -79,90 +91,17 @@ def _spin_pass(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B, F, e
     virial (``want_virial`` False; :func:`virial_pass` adds it): its loop
     holds nothing it does not need. Rows in ``nthreads`` fixed chunks, each
     summing its own energy and virial: the sums do not depend on how many
-    threads run the chunks.
+    threads run the chunks. Returns (E if ``want_energy`` else 0, W in Voigt
+    order).
     """
-    bounds = balanced_chunks(row, nthreads)
-    acc = np.zeros((nthreads, 7))
-    need_dot = want_f or want_energy or want_energies or want_virial
-    need_d = _FORMED
-    for t in nb.prange(nthreads):
-        e = vxx = vyy = vzz = vyz = vxz = vxy = 0.0
-        for i in range(bounds[t], bounds[t + 1]):
-            sx = s[i, 0]
-            sy = s[i, 1]
-            sz = s[i, 2]
-            if need_d:
-                xi = pos[i, 0]
-                yi = pos[i, 1]
-                zi = pos[i, 2]
-            else:
-                xi = yi = zi = 0.0
-            bx = by = bz = 0.0
-            fx = fy = fz = ei = 0.0
-            for k in range(row[i], row[i + 1]):
-                j = nbr[k]
-                Jk = J[k]
-                if want_b:
-                    bx += Jk * u[j, 0]
-                    by += Jk * u[j, 1]
-                    bz += Jk * u[j, 2]
-                if need_dot:
-                    w = sx * s[j, 0] + sy * s[j, 1] + sz * s[j, 2] - c
-                    if need_d:
-                        # d = (r_j − r_i) + S as separation() forms it, r_i loaded once
-                        m = image[k]
-                        dx = (pos[j, 0] - xi) + images[m, 0]
-                        dy = (pos[j, 1] - yi) + images[m, 1]
-                        dz = (pos[j, 2] - zi) + images[m, 2]
-                    else:
-                        dx = dy = dz = 0.0
-                    if _FORMED:
-                        gk = g[k]
-                        Gx = gk * dx
-                        Gy = gk * dy
-                        Gz = gk * dz
-                    else:
-                        Gx = G[k, 0]
-                        Gy = G[k, 1]
-                        Gz = G[k, 2]
-                    fx -= w * Gx
-                    fy -= w * Gy
-                    fz -= w * Gz
-                    ei -= 0.5 * Jk * w
-                    if want_virial:
-                        h = -0.5 * w
-                        vxx += h * Gx * dx
-                        vyy += h * Gy * dy
-                        vzz += h * Gz * dz
-                        vyz += h * Gy * dz
-                        vxz += h * Gx * dz
-                        vxy += h * Gx * dy
-            if want_b:
-                add_to(B, i, bx, by, bz)
-            if want_f:
-                add_to(F, i, fx, fy, fz)
-            if want_energies:
-                energies[i] += ei
-            if want_energy:
-                e += ei
-        store_sums(acc, t, e, vxx, vyy, vzz, vyz, vxz, vxy)
-    out = sum_over_threads(acc)
-    return out[0], out[1], out[2], out[3], out[4], out[5], out[6]
-
-
-def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B, F, energies,
-                    want_b, want_f, want_energy, want_energies, want_virial):
-    """:func:`_spin_pass` over a half list (each pair once), scattering into
-    per-thread buffers, w = s_i·s_j − c, G read (or formed as g d in the
-    :func:`_formed_twin`), d recomputed from ``pos``: B_i += J u_j,
-    B_j += J u_i, F_i −= w G, F_j += w G, e_i, e_j −= ½ J w, W −= w G ⊗ d."""
     if _WANT is not None:  # a twin for one request: the flags are constants
         want_b, want_f, want_energy, want_energies, want_virial = _WANT
-    # forces and field together (forces_and_field): one buffer, both on one
-    # cache line per atom j (two buffers of the scattered rows miss twice)
-    both = want_b and want_f
-    bounds, fbuf, ebuf, acc = scatter_buffers(row, nthreads, want_f and not both, want_energies)
-    bbuf = thread_buffer(nthreads, len(row) - 1, want_b and not both, 3)
+    # a half list's forces and field together (forces_and_field): one buffer,
+    # both on one cache line per atom j (two buffers of the scattered rows miss twice)
+    both = _HALF and want_b and want_f
+    bounds, fbuf, ebuf, acc = scatter_buffers(row, nthreads, _HALF and want_f and not both,
+                                              _HALF and want_energies)
+    bbuf = thread_buffer(nthreads, len(row) - 1, _HALF and want_b and not both, 3)
     pbuf = thread_buffer(nthreads, len(row) - 1, both, 6)
     # where the scattered forces and fields go: columns 0-2 of fb, bo.. of bb
     fb = pbuf if both else fbuf
@@ -175,9 +114,10 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
             sx = s[i, 0]
             sy = s[i, 1]
             sz = s[i, 2]
-            vx = u[i, 0]
-            vy = u[i, 1]
-            vz = u[i, 2]
+            if _HALF:
+                vx = u[i, 0]
+                vy = u[i, 1]
+                vz = u[i, 2]
             if need_d:
                 xi = pos[i, 0]
                 yi = pos[i, 1]
@@ -193,13 +133,16 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
                     bx += Jk * u[j, 0]
                     by += Jk * u[j, 1]
                     bz += Jk * u[j, 2]
-                    add_row(bb, t, j, bo, Jk * vx, Jk * vy, Jk * vz)
+                    if _HALF:
+                        add_row(bb, t, j, bo, Jk * vx, Jk * vy, Jk * vz)
                 if need_dot:
                     w = sx * s[j, 0] + sy * s[j, 1] + sz * s[j, 2] - c
-                    if want_energy or want_energies:
+                    if not _HALF:
+                        ei -= 0.5 * Jk * w
+                    elif want_energy or want_energies:  # ½ J w for each end of the pair
                         ei -= Jk * w
-                    if want_energies:
-                        ebuf[t, j, 0] -= 0.5 * Jk * w
+                        if want_energies:
+                            ebuf[t, j, 0] -= 0.5 * Jk * w
                     if need_d:
                         # d = (r_j − r_i) + S as separation() forms it, r_i loaded once
                         m = image[k]
@@ -209,41 +152,66 @@ def _spin_pass_half(nthreads, row, nbr, image, images, J, g, G, pos, s, u, c, B,
                     else:
                         dx = dy = dz = 0.0
                     if _FORMED:
+                        # G = g d, the geometry pass's product, before w scales it
                         gk = g[k]
-                        # w (g d): the product G = g d of the geometry pass first
-                        gx = w * (gk * dx)
-                        gy = w * (gk * dy)
-                        gz = w * (gk * dz)
+                        Gx = gk * dx
+                        Gy = gk * dy
+                        Gz = gk * dz
                     else:
-                        gx = w * G[k, 0]
-                        gy = w * G[k, 1]
-                        gz = w * G[k, 2]
+                        Gx = G[k, 0]
+                        Gy = G[k, 1]
+                        Gz = G[k, 2]
+                    gx = w * Gx
+                    gy = w * Gy
+                    gz = w * Gz
                     if want_f:
                         fx -= gx
                         fy -= gy
                         fz -= gz
-                        add_row(fb, t, j, 0, gx, gy, gz)
-                    if want_virial:
+                        if _HALF:
+                            add_row(fb, t, j, 0, gx, gy, gz)
+                    if want_virial and _HALF:
                         vxx -= gx * dx
                         vyy -= gy * dy
                         vzz -= gz * dz
                         vyz -= gy * dz
                         vxz -= gx * dz
                         vxy -= gx * dy
-            if want_b:
-                add_row(bb, t, i, bo, bx, by, bz)
-            if want_f:
-                add_row(fb, t, i, 0, fx, fy, fz)
-            if want_energies:
-                ebuf[t, i, 0] += 0.5 * ei
-            e += ei
+                    elif want_virial:
+                        h = -0.5 * w
+                        vxx += h * Gx * dx
+                        vyy += h * Gy * dy
+                        vzz += h * Gz * dz
+                        vyz += h * Gy * dz
+                        vxz += h * Gx * dz
+                        vxy += h * Gx * dy
+            if _HALF:
+                if want_b:
+                    add_row(bb, t, i, bo, bx, by, bz)
+                if want_f:
+                    add_row(fb, t, i, 0, fx, fy, fz)
+                if want_energies:
+                    ebuf[t, i, 0] += 0.5 * ei
+            else:
+                if want_b:
+                    add_to(B, i, bx, by, bz)
+                if want_f:
+                    add_to(F, i, fx, fy, fz)
+                if want_energies:
+                    energies[i] += ei
+            if want_energy:
+                e += ei
         store_sums(acc, t, e, vxx, vyy, vzz, vyz, vxz, vxy)
-    reduce_threads(bbuf, B)
-    # F and B: from fbuf, bbuf or from pbuf, never both (the others are empty)
-    for i in nb.prange(pbuf.shape[1]):
-        _add_thread_sums(pbuf, i, 0, F, F)
-        _add_thread_sums(pbuf, i, 3, B, B)
-    return reduce_scatter(reduce_threads, fbuf, F, ebuf, energies, acc)
+    if _HALF:
+        reduce_threads(bbuf, B)
+        # F and B: from fbuf, bbuf or from pbuf, never both (the others are empty)
+        for i in nb.prange(pbuf.shape[1]):
+            _add_thread_sums(pbuf, i, 0, F, F)
+            _add_thread_sums(pbuf, i, 3, B, B)
+        out = reduce_scatter(reduce_threads, fbuf, F, ebuf, energies, acc)
+    else:
+        out = sum_over_threads(acc)
+    return out[0], out[1], out[2], out[3], out[4], out[5], out[6]
 
 
 @threaded()
@@ -290,7 +258,7 @@ def virial_pass(nthreads, row, nbr, image, images, G, pos, s, c, half):
 def forces_two_pass(nthreads, row, nbr, G, G2, s, c, F, keep, J2, u, B):
     """Over a half list, w = s_i·s_j − c, the forces of two pair geometries of
     one list (G at the positions q, G2 at q̃) for the same spins s, each with
-    the arithmetic of :func:`_spin_pass_half`'s forces:
+    the arithmetic of :func:`_spin_pass`'s forces over a half list:
 
     F_i −= w G, F_j += w G (summed into F);  the same with G2, left as
     per-thread partial sums in keep[t, :, 0:3] (:func:`add_kept_pass`);
@@ -375,6 +343,7 @@ def add_kept_pass(keep, base, out):
 
 spin_pass_kernel = threaded()(_spin_pass)
 spin_pass_formed = threaded()(_formed_twin(_spin_pass))
+_spin_pass_half = kernel_twin(_spin_pass, "_half", _HALF=True)
 spin_pass_half_kernel = threaded(reduce_threads=lambda: reduce_threads_serial)(_spin_pass_half)
 spin_pass_half_formed = threaded(reduce_threads=lambda: reduce_threads_serial)(
     _formed_twin(_spin_pass_half))

@@ -18,6 +18,7 @@ import numba as nb
 import numpy as np
 
 from ..._jit import threads
+from ..._jit.cloning import kernel_twin
 from ..._jit.reductions import balanced_chunks, reduce_threads, reduce_threads_serial
 from ..._jit.threads import threaded
 from .anderson import after_sweep, anderson_mix, anderson_mix_serial
@@ -46,10 +47,16 @@ def _solver_buffers(n, memory, local):
     return dF, dG, fprev, gprev, gram, jacobi_rows
 
 
-@threaded(anderson_mix=lambda: anderson_mix_serial)
-def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
-                   theta0, carry, carry_out, memory=MEMORY, local=True, field=None,
-                   order=None, starts=None):
+#: Read by :func:`_midpoint_solve` as a compile-time constant: False in
+#: :data:`midpoint_solve` (a full pair list), True in its twin
+#: :data:`midpoint_solve_half` (a half list; :func:`~ase_spin._jit.cloning.kernel_twin`).
+#: One solver, two compiled kernels: each holds only its own sweep.
+_HALF = False
+
+
+def _midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
+                    theta0, carry, carry_out, memory=MEMORY, local=True, field=None,
+                    order=None, starts=None):
     r"""Solve the spherical-midpoint equation for fixed pair couplings J̄_ij:
 
     .. math::
@@ -87,6 +94,13 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     m > 0, the next iterate is the Anderson combination of the last m + 1
     sweeps (:func:`anderson_mix`); else g(W). Rows with s_i = 0 (non-magnetic atoms) are skipped.
 
+    Over a half pair list (:data:`midpoint_solve_half`; each pair once, half
+    the memory traffic; ``order`` and ``starts`` not read) each sweep
+    scatters J̄_ij W_j into row i and J̄_ij W_i into row j of per-thread
+    buffers, then updates every spin from their sum, B̄_i = Σ_t buf_t,i in
+    thread order (so in index order only: no row has its whole field before
+    the pass ends).
+
     ``W`` holds the starting guess; ``Wnext`` is a buffer of the same shape (zero
     on non-magnetic rows). ``stilde`` receives the end point of the last sweep,
     s + c W × B̄ written as the reflection of s about the midpoint direction (see
@@ -108,6 +122,13 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
     """
     n = len(row) - 1
     bounds = balanced_chunks(row, nthreads)
+    if _HALF:  # the update pass reads no pairs: the atoms in even chunks
+        atoms = np.empty(nthreads + 1, dtype=np.int64)
+        for t in range(nthreads + 1):
+            atoms[t] = (n * t) // nthreads
+    else:
+        atoms = bounds
+    buf = np.zeros((nthreads, n if _HALF else 0, 3))
     change = np.zeros(nthreads)
     dF, dG, fprev, gprev, gram, jacobi_rows = _solver_buffers(n, memory, local)
     cur = W
@@ -131,7 +152,28 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
         colour_starts = starts
     threaded_colours = coloured and nthreads > 1 and len(colour_starts) > 1
     for it in range(1, max_iter + 1):
-        if threaded_colours:
+        if _HALF:
+            for t in nb.prange(nthreads):
+                for i in range(bounds[t], bounds[t + 1]):
+                    wx = cur[i, 0]
+                    wy = cur[i, 1]
+                    wz = cur[i, 2]
+                    bx = 0.0
+                    by = 0.0
+                    bz = 0.0
+                    for k in range(row[i], row[i + 1]):
+                        j = nbr[k]
+                        Jk = Jbar[k]
+                        bx += Jk * cur[j, 0]
+                        by += Jk * cur[j, 1]
+                        bz += Jk * cur[j, 2]
+                        buf[t, j, 0] += Jk * wx
+                        buf[t, j, 1] += Jk * wy
+                        buf[t, j, 2] += Jk * wz
+                    buf[t, i, 0] += bx
+                    buf[t, i, 1] += by
+                    buf[t, i, 2] += bz
+        elif threaded_colours:
             for t in nb.prange(nthreads):
                 for i in range((n * t) // nthreads, (n * (t + 1)) // nthreads):
                     nxt[i, 0] = cur[i, 0]
@@ -152,13 +194,25 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
             change[:] = 0.0
             change[0] = coloured_sweep(row, nbr, Jbar, s, cur, nxt, scale, stilde, carry,
                                         carry_out, jacobi_rows, field, by_colour)
-        else:
+        if _HALF or not coloured:  # index order: each spin from its whole field
             for t in nb.prange(nthreads):
                 m = 0.0
-                for i in range(bounds[t], bounds[t + 1]):
+                for i in range(atoms[t], atoms[t + 1]):
+                    if _HALF:
+                        bx = 0.0
+                        by = 0.0
+                        bz = 0.0
+                        for u in range(nthreads):
+                            bx += buf[u, i, 0]
+                            by += buf[u, i, 1]
+                            bz += buf[u, i, 2]
+                            buf[u, i, 0] = 0.0
+                            buf[u, i, 1] = 0.0
+                            buf[u, i, 2] = 0.0
                     if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
                         continue
-                    bx, by, bz = pair_field_row(i, row, nbr, Jbar, cur)
+                    if not _HALF:
+                        bx, by, bz = pair_field_row(i, row, nbr, Jbar, cur)
                     if field is not None and field.shape[0] > 0:
                         field[i, 0] = bx
                         field[i, 1] = by
@@ -185,106 +239,16 @@ def midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, fl
             which = 1 - which
     if local:
         for t in nb.prange(nthreads):
-            end_points_of_rows(bounds[t], bounds[t + 1], s, nxt, stilde, carry, carry_out,
-                        jacobi_rows)
-    if status < 0:
-        return max_iter, delta, NOT_CONVERGED, which, measured, first
-    return it, delta, status, which, measured, first
-
-
-@threaded(anderson_mix=lambda: anderson_mix_serial)
-def midpoint_solve_half(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor,
-                        max_iter, theta0, carry, carry_out, memory=MEMORY, local=True,
-                        field=None):
-    """:func:`midpoint_solve` over a half pair list (each pair once, half the
-    memory traffic): each sweep scatters J̄_ij W_j into row i and J̄_ij W_i into
-    row j of per-thread buffers, then updates every spin from their sum (so
-    in index order only: no row has its whole field before the pass ends)."""
-    n = len(row) - 1
-    bounds = balanced_chunks(row, nthreads)
-    atoms = np.empty(nthreads + 1, dtype=np.int64)
-    for t in range(nthreads + 1):
-        atoms[t] = (n * t) // nthreads
-    buf = np.zeros((nthreads, n, 3))
-    change = np.zeros(nthreads)
-    dF, dG, fprev, gprev, gram, jacobi_rows = _solver_buffers(n, memory, local)
-    cur = W
-    nxt = Wnext
-    which = 1  # the buffer nxt is: 0 = W, 1 = Wnext
-    previous = np.inf
-    theta = theta0
-    measured = -1.0
-    delta = 0.0
-    first = 0.0
-    status = -1
-    it = 0
-    for it in range(1, max_iter + 1):
-        for t in nb.prange(nthreads):
-            for i in range(bounds[t], bounds[t + 1]):
-                wx = cur[i, 0]
-                wy = cur[i, 1]
-                wz = cur[i, 2]
-                bx = 0.0
-                by = 0.0
-                bz = 0.0
-                for k in range(row[i], row[i + 1]):
-                    j = nbr[k]
-                    Jk = Jbar[k]
-                    bx += Jk * cur[j, 0]
-                    by += Jk * cur[j, 1]
-                    bz += Jk * cur[j, 2]
-                    buf[t, j, 0] += Jk * wx
-                    buf[t, j, 1] += Jk * wy
-                    buf[t, j, 2] += Jk * wz
-                buf[t, i, 0] += bx
-                buf[t, i, 1] += by
-                buf[t, i, 2] += bz
-        for t in nb.prange(nthreads):
-            m = 0.0
-            for i in range(atoms[t], atoms[t + 1]):
-                bx = 0.0
-                by = 0.0
-                bz = 0.0
-                for u in range(nthreads):
-                    bx += buf[u, i, 0]
-                    by += buf[u, i, 1]
-                    bz += buf[u, i, 2]
-                    buf[u, i, 0] = 0.0
-                    buf[u, i, 1] = 0.0
-                    buf[u, i, 2] = 0.0
-                if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
-                    continue
-                if field is not None and field.shape[0] > 0:
-                    field[i, 0] = bx
-                    field[i, 1] = by
-                    field[i, 2] = bz
-                if local:
-                    d = local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale, stilde,
-                                                  carry, carry_out, jacobi_rows)
-                else:
-                    d = update_row(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
-                                         carry_out)
-                if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
-                    m = d
-            change[t] = m
-        delta = change.max()
-        status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
-                                                      first, tol, floor)
-        if status >= 0:
-            break
-        previous = delta
-        if memory > 0:
-            anderson_mix(it, cur, nxt, fprev, gprev, dF, dG, gram)
-        else:
-            cur, nxt = nxt, cur
-            which = 1 - which
-    if local:
-        for t in nb.prange(nthreads):
             end_points_of_rows(atoms[t], atoms[t + 1], s, nxt, stilde, carry, carry_out,
                         jacobi_rows)
     if status < 0:
         return max_iter, delta, NOT_CONVERGED, which, measured, first
     return it, delta, status, which, measured, first
+
+
+midpoint_solve = threaded(anderson_mix=lambda: anderson_mix_serial)(_midpoint_solve)
+midpoint_solve_half = threaded(anderson_mix=lambda: anderson_mix_serial)(
+    kernel_twin(_midpoint_solve, "_half", _HALF=True))
 
 
 @threaded()
