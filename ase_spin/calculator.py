@@ -159,13 +159,24 @@ class SpinLatticeCalculator(Calculator):
                 "conventions": self.hamiltonian.conventions.name}
 
     @classmethod
-    def from_dict(cls, data):
+    def from_dict(cls, data, allow=None):
         """The calculator of :meth:`todict`'s data, e.g. of a trajectory frame:
-        ``SpinLatticeCalculator.from_dict(read('md.traj').calc.parameters)``."""
+        ``SpinLatticeCalculator.from_dict(read('md.traj').calc.parameters)``.
+
+        Data builds ase_spin's own terms and couplings only. A wrapped ASE
+        calculator (``EMT()`` among the terms), or a term class of your own, is
+        built only when you allow it, for data you trust: ``allow=[EMT]``
+        (classes), or ``allow={"EMT": factory}`` (the name the data gives, as
+        ``"module:Class"`` or the bare class name, mapped to a callable that
+        takes the written parameters as keywords; it may change them).
+        Anything else named in the data is a ValueError naming it, before any
+        module is imported (docs/errors.md, "What data may run")."""
         if not isinstance(data, dict) or "terms" not in data:
             raise ValueError("from_dict needs the dict of SpinLatticeCalculator.todict() "
                              f"(with 'terms'), got {data!r:.80}")
-        return cls([decode_term(t) for t in data["terms"]], skin=data.get("skin", 0.3),
+        if not isinstance(data["terms"], list):
+            raise TypeError(f"from_dict: 'terms' must be a list, got {data['terms']!r:.80}")
+        return cls([decode_term(t, allow) for t in data["terms"]], skin=data.get("skin", 0.3),
                    conventions=data.get("conventions", "physical"))
 
     def get_magnetic_moment_vector(self, atoms=None):

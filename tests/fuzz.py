@@ -14,7 +14,12 @@ judged by :func:`run_case`:
 - ``atoms-changed``: a documented exception, but the Atoms were modified;
 - ``silent-wrong``: no exception, and a non-finite or wrong result;
 - ``crash``: the process died (only seen by :func:`run_isolated`, which runs
-  cases in a child process and starts a new one after a death).
+  cases in a child process and starts a new one after a death);
+- ``security``: data ran code or wrote where it was not asked to (a module
+  named in data imported, a calculator built from data, a file created by a
+  deck name or an input file's nested table), and ``data-loss``: a file was
+  destroyed (an output replacing the input): seen by the case's own check,
+  which raises :class:`Breach`, whatever the call raised.
 
 ``python tests/fuzz.py [--quick] [--family NAME ...]`` runs the campaign and
 prints the counts by family and verdict; tests/test_fuzz.py runs a fast subset in
@@ -48,9 +53,20 @@ import ase_spin  # noqa: E402
 from conftest import PACKAGE_PATH, interrupted_at  # noqa: E402
 from ase_spin import (BetheSlater, CollectivePRK, Cubic, Exchange, IntegrationError,  # noqa: E402
                       LennardJones, SpinLatticeCalculator, SuzukiTrotter)
+from ase_spin.app import cli  # noqa: E402
 
 DOCUMENTED = (TypeError, ValueError, IntegrationError, FileExistsError)
-VERDICTS = ("ok-error", "ok-result", "bad-error", "atoms-changed", "silent-wrong", "crash")
+VERDICTS = ("ok-error", "ok-result", "bad-error", "atoms-changed", "silent-wrong", "crash",
+            "security", "data-loss")
+
+
+class Breach(Exception):
+    """Raised by a case's own check: the call ran code or wrote where it was not
+    asked to (``verdict`` "security") or destroyed a file ("data-loss")."""
+
+    def __init__(self, verdict, detail):
+        super().__init__(detail)
+        self.verdict = verdict
 
 CO_LJ = dict(epsilon=0.4, sigma=2.2742, rc=4.7)
 CO_BS = (0.0446928, 0.003496, 1.4885)
@@ -128,6 +144,8 @@ def run_case(case):
     before = fingerprint(atoms) if isinstance(atoms, Atoms) else None
     try:
         result = case.act(atoms)
+    except Breach as err:
+        return err.verdict, str(err)[:200]
     except DOCUMENTED as err:
         message = str(err)
         if case.expect == "result":
@@ -883,6 +901,179 @@ def family_systems():
     return cases
 
 
+# -- security: data must not run code, write elsewhere, or destroy files ---------------
+
+SECURITY_SCENE = """
+[structure]
+build = {function = "bulk", name = "Co", crystalstructure = "fcc", a = 3.54, cubic = true}
+
+[spins]
+magnitude = 1.72
+
+[[terms]]
+type = "Exchange"
+coupling = {type = "BetheSlater", J1 = 0.0446928, J2 = 0.003496, J3 = 1.4885}
+rc = 4.0
+
+[integrator]
+timestep = 0.5
+steps = 1
+
+[output]
+trajectory = "md.traj"
+log = "md.log"
+"""
+
+
+def _folder_state(folder):
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file()}
+
+
+def _cli_case(name, changes, keywords, verdict, overwrite=True, prepare_folder=None):
+    """A case running ``ase-spin run`` on the scene changed by ``changes``
+    ((old, new) pairs) in a fresh folder: an input error is expected, and the
+    folder must hold exactly what it held (else ``verdict``)."""
+    def act(atoms):
+        folder = Path(tempfile.mkdtemp(prefix="fuzz-security-"))
+        text = SECURITY_SCENE
+        for old, new in changes:
+            assert old in text, old
+            text = text.replace(old, new, 1)
+        (folder / "scene.toml").write_text(text)
+        if prepare_folder is not None:
+            prepare_folder(folder)
+        before = _folder_state(folder)
+        try:
+            return cli.run(folder / "scene.toml", overwrite=overwrite, progress=False,
+                           out=open(os.devnull, "w"))
+        finally:
+            after = _folder_state(folder)
+            if after != before:
+                changed = sorted(set(after) ^ set(before) | {k for k in before if k in after
+                                                             and after[k] != before[k]})
+                raise Breach(verdict, f"files changed: {changed}")
+    return Case("security", name, act, expect="error", keywords=keywords)
+
+
+def family_security():
+    from ase.calculators.emt import EMT
+
+    cases = []
+    tmp = Path(tempfile.mkdtemp(prefix="fuzz-security-"))
+
+    def from_dict(data, allow=None):
+        def act(atoms):
+            marker = tmp / "imported"
+            try:
+                calc = (SpinLatticeCalculator.from_dict(data) if allow is None
+                        else SpinLatticeCalculator.from_dict(data, allow=allow))
+            finally:
+                if marker.exists():
+                    raise Breach("security", "a module named in the data was imported")
+            built = [t for t in calc.hamiltonian.terms if hasattr(t, "calculator")]
+            if built:
+                raise Breach("security", f"built {type(built[0].calculator).__name__} from "
+                                          "data")
+            return calc.todict()
+        return act
+
+    (tmp / "fuzz_evil_module.py").write_text(
+        f"open({str(tmp / 'imported')!r}, 'w').write('ran')\nclass Term:\n    pass\n")
+    sys.path.insert(0, str(tmp))
+    for path in ("fuzz_evil_module:Term", "os:system", "builtins:eval", "ase_spin.app.cli:main"):
+        cases.append(Case("security", f"from_dict of the class {path}",
+                          from_dict({"terms": [{"__class__": path, "args": {}}]}),
+                          expect="error", keywords=("refused to build", path)))
+    lammps = {"__class__": "ase_spin.terms.ase_calculator:CalculatorTerm",
+              "args": {"calculator": {"__calculator__": "ase.calculators.lammpsrun:LAMMPS",
+                                      "parameters": {"command": "touch pwned"}}}}
+    cases.append(Case("security", "from_dict of ASE's LAMMPS calculator with a command",
+                      from_dict({"terms": [lammps]}), expect="error",
+                      keywords=("refused to build the ASE calculator",)))
+    emt = json.loads(json.dumps(SpinLatticeCalculator([EMT()]).todict()))
+    cases.append(Case("security", "from_dict of EMT, not allowed", from_dict(emt),
+                      expect="error", keywords=("allow=[EMT]",)))
+    cases.append(Case("security", "from_dict of EMT, allowed by another class",
+                      from_dict(emt, allow=[LennardJones]), expect="error",
+                      keywords=("allow=[EMT]",)))
+
+    def deck(**names):
+        def act(atoms):
+            folder = tmp / f"deck{len(list(tmp.iterdir()))}"
+            before = _folder_state(tmp)
+            try:
+                return ase_spin.write_lammps(folder / "run", atoms, timestep=DT, **names)
+            finally:
+                after = _folder_state(tmp)
+                if after != before or folder.exists():
+                    raise Breach("security", f"wrote {sorted(set(after) - set(before))}")
+        return act
+
+    def lammps_scene():
+        a = scene()
+        a.calc = SpinLatticeCalculator(terms(), conventions="lammps")
+        return a
+
+    for key, name in (("input_name", "in.spin\nshell touch pwned"),
+                      ("dump_name", "dump.spin\rshell rm -rf ~"),
+                      ("energy_name", "e.spin & shell touch pwned"),
+                      ("data_name", "../../escaped.data"),
+                      ("data_name", str(tmp / "escaped.data")),
+                      ("data_name", ".."),
+                      ("dump_name", "${pwned}"),
+                      ("input_name", "in.spin#"),
+                      ("dump_name", "dump.*"),
+                      ("data_name", "in.spin")):
+        cases.append(Case("security", f"deck {key} {name!r}", deck(**{key: name}),
+                          setup=lammps_scene, expect="error", keywords=(key,)))
+
+    logger = ('rc = {type = "SpinMDLogger", dyn = {type = "Cubic", J0 = 0.1, rc = 3.0}, '
+              'logfile = "pwned.txt"}')
+    cases.append(_cli_case("input: a logger nested in a term", [("rc = 4.0", logger)],
+                           ("builds a coupling",), "security"))
+    coupling = 'coupling = {type = "BetheSlater", J1 = 0.0446928, J2 = 0.003496, J3 = 1.4885}'
+    calculator = 'coupling = {"Co-Co" = {type = "SpinLatticeCalculator", terms = []}}'
+    cases.append(_cli_case("input: a calculator nested in a term", [(coupling, calculator)],
+                           ("builds a coupling",), "security"))
+    composition = 'steps = 1\ncomposition = {type = "Cubic", J0 = 0.1, rc = 3.0}'
+    cases.append(_cli_case("input: a coupling nested in the integrator",
+                           [("steps = 1", composition)], ("builds a coupling",), "security"))
+    cases.append(_cli_case("input: trajectory = the input file, overwrite",
+                           [('trajectory = "md.traj"', 'trajectory = "scene.toml"')],
+                           ("the input file",), "data-loss"))
+    build = ('build = {function = "bulk", name = "Co", crystalstructure = "fcc", a = 3.54, '
+             'cubic = true}')
+    cases.append(_cli_case("input: log = the structure file, overwrite",
+                           [(build, 'file = "start.xyz"'), ('log = "md.log"', 'log = "start.xyz"')],
+                           ("structure file",), "data-loss",
+                           prepare_folder=lambda f: _write_structure(f / "start.xyz")))
+    cases.append(_cli_case("input: log = trajectory", [('log = "md.log"', 'log = "md.traj"')],
+                           ("interleaved",), "data-loss"))
+    cases.append(_cli_case("input: outputs of a run in progress, overwrite", [],
+                           ("being written",), "data-loss",
+                           prepare_folder=lambda f: _run_in_progress(f, cli.LOCK_SUFFIX)))
+    cases.append(_cli_case("input: direction = [0, 0, true]",
+                           [("magnitude = 1.72", "magnitude = 1.72\ndirection = [0, 0, true]")],
+                           ("direction",), "silent-wrong"))
+    return cases
+
+
+def _write_structure(path):
+    from ase.io import write
+
+    write(path, bulk("Co", "fcc", a=3.54, cubic=True))
+
+
+def _run_in_progress(folder, suffix):
+    """md.traj and md.log of another run on this machine that is writing them."""
+    import socket
+
+    (folder / "md.traj").write_bytes(b"frames of another run")
+    (folder / "md.log").write_text("Time[ps]\n")
+    (folder / f"md.traj{suffix}").write_text(f"{os.getppid()} {socket.gethostname()}\n")
+
+
 def families(quick=False):
     """name -> list of cases (``quick``: the default test run's subset)."""
     return {
@@ -901,6 +1092,7 @@ def families(quick=False):
         "files": family_files(stride=97 if quick else 1),
         "langevin": family_langevin(stride=61 if quick else 1),
         "systems": family_systems(),
+        "security": family_security(),
     }
 
 

@@ -25,13 +25,16 @@ example)::
 How the tables become objects: :mod:`ase_spin.app.inputs`. A run is built
 and checked whole (step 0 evaluated) before any file is written; a mistake
 in the input is one line on stderr and exit status 2 (``--debug``: with the
-traceback).
+traceback). Outputs are never a file the run reads nor two of one name, and
+a run holds ``<output>.lock`` beside each output while it writes: a second
+run on the same outputs is refused (exit status 2).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import socket
 import sys
 import time
 import traceback
@@ -45,7 +48,7 @@ from ..md import IntegrationError
 from ..md.errors import TimestepWarning
 from ..validate import ImplausibleParameterWarning
 from .inputs import (TABLE_KEYS, InputError, InputWarning, build_integrator, build_scene,
-                     in_folder, in_input_words, load_input, refuse_unknown, take,
+                     files_read, in_folder, in_input_words, load_input, refuse_unknown, take,
                      warn_implausible)
 from .warmup import compile_kernels
 
@@ -54,10 +57,14 @@ __all__ = ["main", "load_input", "build_scene", "plot_log", "read_log", "log_pan
 
 # -- run ---------------------------------------------------------------------------
 
-def _outputs(spec, stem, steps, overwrite):
-    """The output paths, interval and the existing files to replace, from the
-    [output] table: existing files refused unless ``overwrite``. Touches no
-    file."""
+def _outputs(spec, stem, steps, overwrite, input_path=None):
+    """The output paths, interval and whether existing outputs are replaced
+    (``overwrite``, or the table's), from the [output] table: existing files
+    refused unless they are; refused
+    always: an output that is a folder or in a folder that does not exist, two
+    outputs of one name (their contents would be interleaved), an output that
+    is a file the run reads (the input file, the structure file, a potential:
+    ``overwrite`` would destroy it). Touches no file."""
     t = dict(spec.get("output", {}))
     refuse_unknown(t, "output", TABLE_KEYS["output"])
     paths = {}
@@ -71,11 +78,147 @@ def _outputs(spec, stem, steps, overwrite):
     if interval < 1:
         raise InputError(f"[output] interval must be >= 1, got {interval}")
     overwrite = take(t, "output", "overwrite", False, bool) or overwrite
+    _check_output_paths(paths, spec, input_path)
     existing = [p for p in paths.values() if p and Path(p).exists()]
     if existing and not overwrite:
         raise InputError(f"output file(s) {', '.join(existing)} exist: remove them, name "
                          "others in [output], or run with --overwrite")
-    return paths, interval, existing
+    return paths, interval, overwrite
+
+
+def _same(a, b):
+    """Whether two paths name one file (the same path resolved, or links to one file)."""
+    a, b = Path(a), Path(b)
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _check_output_paths(paths, spec, input_path):
+    """Refuse outputs that are folders or in missing folders, outputs of one
+    name, and outputs that are files the run reads (see :func:`_outputs`)."""
+    named = [(key, p) for key, p in paths.items() if p]
+    for key, p in named:
+        if "\0" in p:
+            raise InputError(f"[output] {key} {p!r} is not a file name")
+        if Path(p).is_dir():
+            raise InputError(f"[output] {key} {p!r} is a folder: name a file")
+        if not Path(p).parent.is_dir():
+            raise InputError(f"[output] {key} {p!r}: the folder {str(Path(p).parent)!r} does "
+                             "not exist")
+    for i, (key, p) in enumerate(named):
+        for other, q in named[:i]:
+            if _same(p, q):
+                raise InputError(f"[output] {other} and {key} are both {q!r}: their contents "
+                                 "would be interleaved; name two files")
+    read = dict(files_read(spec))
+    if input_path is not None:
+        read["the input file"] = str(input_path)
+    for key, p in named:
+        for what, f in read.items():
+            if _same(p, f):
+                raise InputError(f"[output] {key} {p!r} is {what}, which the run reads: "
+                                 "writing it would destroy it; name another file")
+
+
+# -- one run per output: lock files ---------------------------------------------------
+
+LOCK_SUFFIX = ".lock"
+
+#: The lock files this process holds (a lock naming this process's id but not
+#: in here is a dead process's whose id was reused).
+_HELD = set()
+
+
+def _lock_outputs(paths):
+    """Take ``<output>.lock`` for every output, each created with O_EXCL (one
+    process wins), holding ``pid host``; returns the lock paths taken. A lock
+    of a run that is no longer running (same host, its process gone) is taken
+    over. A lock held by another run is an InputError naming the output and
+    the run, the locks already taken released: two runs writing one
+    trajectory (or one run replacing, with --overwrite, the files another is
+    writing) would leave neither's data."""
+    taken = []
+    me = f"{os.getpid()} {socket.gethostname()}"
+    try:
+        for key, p in paths.items():
+            if not p:
+                continue
+            lock = _lock_path(p)
+            for attempt in (0, 1):
+                try:
+                    fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+                except FileExistsError:
+                    holder = _lock_holder(lock)
+                    if attempt == 0 and holder is not None and _stale(holder, lock):
+                        lock.unlink(missing_ok=True)
+                        continue
+                    raise _locked(key, p, lock, holder) from None
+                taken.append(lock)
+                _HELD.add(lock.resolve())
+                with os.fdopen(fd, "w") as fd:
+                    fd.write(me + "\n")
+                break
+    except BaseException:
+        _unlock(taken)
+        raise
+    return taken
+
+
+def _lock_path(output):
+    return Path(f"{output}{LOCK_SUFFIX}").absolute()
+
+
+def _locked(key, output, lock, holder):
+    who = f"ase-spin run, process {holder[0]} on {holder[1]}" if holder else "another run"
+    return InputError(f"[output] {key} {output!r} is being written by {who} (lock file "
+                      f"{str(lock)!r}): wait for it to end or name other outputs; remove "
+                      f"{str(lock)!r} if no run writes it")
+
+
+def _check_unlocked(paths):
+    """Refuse at once, before the run is built, outputs another run holds
+    (:func:`_lock_outputs` takes the locks once everything is checked)."""
+    for key, p in paths.items():
+        lock = _lock_path(p) if p else None
+        if lock is not None and lock.exists():
+            holder = _lock_holder(lock)
+            if holder is None or not _stale(holder, lock):
+                raise _locked(key, p, lock, holder)
+
+
+def _lock_holder(lock):
+    """(pid, host) written in a lock file, or None if it cannot be read."""
+    try:
+        pid, host = lock.read_text().split()
+        return int(pid), host
+    except (OSError, ValueError):
+        return None
+
+
+def _stale(holder, lock):
+    """A lock of this host whose process is gone."""
+    pid, host = holder
+    if host != socket.gethostname():
+        return False
+    if pid == os.getpid():
+        return lock.resolve() not in _HELD
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except OSError:  # alive, another user's
+        return False
+    return False
+
+
+def _unlock(locks):
+    for lock in locks:
+        _HELD.discard(lock.resolve())
+        lock.unlink(missing_ok=True)
 
 
 def _step_zero(dyn):
@@ -105,7 +248,9 @@ def run(input_path, steps=None, overwrite=False, progress=True, out=None):
     with in_folder(input_path.parent):
         nsteps = spec.get("integrator", {}).get("steps", 0) if steps is None else steps
         nsteps = nsteps if isinstance(nsteps, int) and not isinstance(nsteps, bool) else 0
-        paths, interval, existing = _outputs(spec, input_path.stem, nsteps, overwrite)
+        paths, interval, overwrite = _outputs(spec, input_path.stem, nsteps, overwrite,
+                                              input_path)
+        _check_unlocked(paths)
         atoms = build_scene(spec)
         probe, nsteps = build_integrator(atoms, spec, dict.fromkeys(("trajectory", "log")),
                                          interval, steps)
@@ -117,40 +262,56 @@ def run(input_path, steps=None, overwrite=False, progress=True, out=None):
                 raise InputError(f"[output] xyz: {err}") from None
         warn_implausible(spec, nsteps)
         del probe  # its state: as large as the run's
-        # all checked: from here on files are written
-        for p in existing:
-            os.remove(p)
-        dyn = None
+        # all checked: from here on files are written, by this run alone
+        locks = _lock_outputs(paths)
         try:
-            with warnings.catch_warnings():
-                # the probe's step 0 was this one: its warnings were shown
-                warnings.simplefilter("ignore", TimestepWarning)
-                dyn, nsteps = build_integrator(atoms, spec, paths, interval, steps)
-                if paths["xyz"]:
-                    xyz = paths["xyz"]
-                    dyn.attach(lambda: write_ovito_xyz(xyz, atoms, append=True),
-                               interval=interval)
-                terms = ", ".join(type(t).__name__ for t in atoms.calc.hamiltonian.terms)
-                written = ", ".join(f"{k} {v}" for k, v in paths.items() if v) or "nothing"
-                print(f"{len(atoms)} atoms ({atoms.get_chemical_formula()}), terms: {terms}\n"
-                      f"{type(dyn).__name__}, {dyn.dt / _fs():.4g} fs x {nsteps} steps "
-                      f"({nsteps * dyn.dt / _fs() / 1000:.4g} ps); writing {written} every "
-                      f"{interval} steps", file=out, flush=True)
-                t0 = time.perf_counter()
-                try:
-                    dyn.run(nsteps, progress=progress)
-                finally:
-                    dyn.close()
-        except BaseException as err:
-            if dyn is None or dyn.nsteps == 0:
-                # no step done: nothing but the input's state in them
-                err.removed_outputs = _remove(paths)
-            raise
-        elapsed = time.perf_counter() - t0
-        rate = nsteps / elapsed if elapsed > 0 else float("inf")
-        print(f"done: {nsteps} steps in {elapsed:.1f} s ({rate:.3g} steps/s, "
-              f"{1e6 * elapsed / max(nsteps * len(atoms), 1):.3g} µs per atom-step)",
-              file=out, flush=True)
+            dyn = _run_locked(atoms, spec, paths, interval, steps, overwrite, progress, out)
+        finally:
+            _unlock(locks)
+    return dyn
+
+
+def _run_locked(atoms, spec, paths, interval, steps, overwrite, progress, out):
+    """The run of :func:`run` once its outputs are locked: the outputs that
+    exist replaced (looked at again: another run may have left them since),
+    the run built and integrated."""
+    existing = [p for p in paths.values() if p and Path(p).exists()]
+    if existing and not overwrite:
+        raise InputError(f"output file(s) {', '.join(existing)} exist: remove them, name "
+                         "others in [output], or run with --overwrite")
+    for p in existing:
+        os.remove(p)
+    dyn = None
+    try:
+        with warnings.catch_warnings():
+            # the probe's step 0 was this one: its warnings were shown
+            warnings.simplefilter("ignore", TimestepWarning)
+            dyn, nsteps = build_integrator(atoms, spec, paths, interval, steps)
+            if paths["xyz"]:
+                xyz = paths["xyz"]
+                dyn.attach(lambda: write_ovito_xyz(xyz, atoms, append=True),
+                           interval=interval)
+            terms = ", ".join(type(t).__name__ for t in atoms.calc.hamiltonian.terms)
+            written = ", ".join(f"{k} {v}" for k, v in paths.items() if v) or "nothing"
+            print(f"{len(atoms)} atoms ({atoms.get_chemical_formula()}), terms: {terms}\n"
+                  f"{type(dyn).__name__}, {dyn.dt / _fs():.4g} fs x {nsteps} steps "
+                  f"({nsteps * dyn.dt / _fs() / 1000:.4g} ps); writing {written} every "
+                  f"{interval} steps", file=out, flush=True)
+            t0 = time.perf_counter()
+            try:
+                dyn.run(nsteps, progress=progress)
+            finally:
+                dyn.close()
+    except BaseException as err:
+        if dyn is None or dyn.nsteps == 0:
+            # no step done: nothing but the input's state in them
+            err.removed_outputs = _remove(paths)
+        raise
+    elapsed = time.perf_counter() - t0
+    rate = nsteps / elapsed if elapsed > 0 else float("inf")
+    print(f"done: {nsteps} steps in {elapsed:.1f} s ({rate:.3g} steps/s, "
+          f"{1e6 * elapsed / max(nsteps * len(atoms), 1):.3g} µs per atom-step)",
+          file=out, flush=True)
     return dyn
 
 

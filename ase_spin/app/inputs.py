@@ -4,10 +4,11 @@ building the scene and the integrator it describes (docs/command_line.md).
 Terms, couplings and integrators are looked up by name among the classes
 ``ase_spin`` exports: a term added to the package (and exported) is usable
 here with no change to this file. A table with a ``type`` key anywhere inside
-a term's parameters builds that object (``coupling = {type = "BetheSlater",
-J1 = ...}``); every other key is a keyword argument, checked against the
-class's signature (unknown keys, with the nearest known one; keys without a
-default) before the class is called.
+a term's parameters builds that coupling (``coupling = {type = "BetheSlater",
+J1 = ...}``; :data:`NESTED`), and nothing else is built from a nested table;
+every other key is a keyword argument, checked against the class's signature
+(unknown keys, with the nearest known one; keys without a default; a
+true/false for a keyword that is not a flag) before the class is called.
 
 Units: every quantity is in the unit docs/command_line.md's table gives it;
 times are in fs. The keys whose unit differs from the Python API's (ASE time
@@ -35,14 +36,20 @@ from ..hamiltonian import Hamiltonian
 from ..md import SpinLatticeDynamics
 from ..md.errors import TimestepWarning
 from ..spins import get_moments, split_moments
-from ..terms import Term
+from ..terms import Coupling, Term
 from ..validate import REQUIRED
 
 __all__ = ["load_input", "check_input", "build_scene", "build_integrator", "in_folder", "make",
-           "take", "refuse_unknown", "check_keywords", "check_table", "warn_implausible",
-           "in_input_words", "InputError", "InputWarning", "UNITS", "TABLE_KEYS"]
+           "take", "refuse_unknown", "check_keywords", "check_table", "refuse_flags",
+           "warn_implausible", "in_input_words", "files_read", "InputError", "InputWarning",
+           "UNITS", "TABLE_KEYS", "NESTED"]
 
 _TABLES = ("structure", "spins", "velocities", "terms", "calculator", "integrator", "output")
+
+#: What a table with a ``type`` inside a [[terms]] table may build (the
+#: documented schema: couplings); nowhere else does a nested table build
+#: anything (a file must not make, say, a logger, which opens the file it names).
+NESTED = Coupling
 
 #: The keys of the tables with fixed keys ([[terms]] and [integrator] take
 #: their class's keywords).
@@ -203,6 +210,56 @@ def _keywords(function):
     return None
 
 
+def _flag_keywords(function):
+    """The keywords of ``function`` (a class: of its ``__init__`` up the MRO)
+    whose default is True or False: the only ones a TOML true/false may set."""
+    functions = ([vars(c)["__init__"] for c in function.__mro__
+                  if c is not object and "__init__" in vars(c)]
+                 if inspect.isclass(function) else [function])
+    flags = set()
+    for f in functions:
+        try:
+            parameters = inspect.signature(f).parameters.values()
+        except (TypeError, ValueError):
+            continue
+        flags.update(p.name for p in parameters if isinstance(p.default, bool))
+    return flags
+
+
+def _holds_flag(value):
+    """True if ``value`` is or holds (in lists, or tables without a ``type``,
+    which are checked as tables of their own) a true/false."""
+    if isinstance(value, bool):
+        return True
+    if isinstance(value, list):
+        return any(_holds_flag(v) for v in value)
+    if isinstance(value, dict) and "type" not in value:
+        return any(_holds_flag(v) for v in value.values())
+    return False
+
+
+def refuse_flags(table, where, function, skip=("type",)):
+    """Refuse a TOML true/false in a key of ``table`` whose keyword of
+    ``function`` does not default to True/False: Python would take true for 1
+    (``order = true`` an order 1, ``direction = [0, 0, true]`` a unit vector)."""
+    flags = _flag_keywords(function)
+    for key, value in table.items():
+        if key not in skip and key not in flags and _holds_flag(value):
+            raise InputError(f"{_label(where)} {key} = {_as_written(value)}: true/false where a "
+                             "value is expected (true is not taken for 1)")
+
+
+def _as_written(value):
+    """A value as the input file wrote it (true/false, not True/False)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, list):
+        return "[" + ", ".join(_as_written(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k} = {_as_written(v)}" for k, v in value.items()) + "}"
+    return repr(value) if isinstance(value, str) else str(value)
+
+
 def check_keywords(keys, function, where, given=(), hidden=(), units_of=None, extra=()):
     """Refuse, before ``function`` is called, the ``keys`` of an input table
     that it does not take (with the nearest it does) and the keywords it needs
@@ -238,66 +295,80 @@ def _exported(base):
     return found
 
 
-def _class_of(spec, where, base):
+def _class_of(spec, where, base, nested=False):
     """The class named by a table's ``type``: exported by ase_spin, a subclass
-    of ``base``."""
+    of ``base`` (``nested``: a table inside a term, which builds a coupling)."""
     name = spec.get("type")
     choices = _exported(base)
     if not isinstance(name, str):
         raise InputError(f"{where} needs type = one of {', '.join(sorted(choices))}")
     if name not in choices:
+        if nested and name in _exported(object):
+            raise InputError(f"{where}: type {name!r} is not built here: a table inside a "
+                             "[[terms]] table builds a coupling, one of "
+                             f"{', '.join(sorted(choices))}")
         raise InputError(f"{where}: unknown type {name!r}{_nearest(name, choices)}; choose "
                          f"one of {', '.join(sorted(choices))}")
     return choices[name]
 
 
-def check_table(spec, where, base=object, given=(), hidden=(), units_of=None, extra=()):
+def check_table(spec, where, base=object, given=(), hidden=(), units_of=None, extra=(),
+                nested=None, inside=False):
     """Check a table that builds an object (``type`` and keywords), and the
     tables with a ``type`` inside it, without building anything: the type is
-    known, the keys are the class's keywords (:func:`check_keywords`).
-    Returns the class."""
-    cls = _class_of(spec, where, base)
+    known, the keys are the class's keywords (:func:`check_keywords`), no
+    true/false where the keyword is not a flag (:func:`refuse_flags`).
+    ``nested``: the base class a table with a ``type`` inside it may build
+    (None: no such table; ``inside``: this table is one). Returns the class."""
+    cls = _class_of(spec, where, base, inside)
     keys = [k for k in spec if k != "type"]
-    check_keywords(keys, cls, f"{where} ({spec['type']})", given, hidden, units_of, extra)
+    label = f"{where} ({spec['type']})"
+    check_keywords(keys, cls, label, given, hidden, units_of, extra)
+    refuse_flags(spec, label, cls)
     for k in keys:
-        _check_nested(spec[k], f"{where}.{k}")
+        _check_nested(spec[k], f"{where}.{k}", nested)
     return cls
 
 
-def _check_nested(v, where):
+def _check_nested(v, where, nested):
     if isinstance(v, dict):
         if "type" in v:
-            check_table(v, where)
+            if nested is None:
+                raise InputError(f"{where}: a table with a type builds a coupling inside a "
+                                 "[[terms]] table only; nothing is built from it here")
+            check_table(v, where, nested, nested=nested, inside=True)
         else:
             for k, x in v.items():
-                _check_nested(x, f"{where}.{k}")
+                _check_nested(x, f"{where}.{k}", nested)
     elif isinstance(v, list):
         for k, x in enumerate(v):
-            _check_nested(x, f"{where}[{k}]")
+            _check_nested(x, f"{where}[{k}]", nested)
 
 
-def make(spec, where, base=object, given=None, hidden=(), units_of=None, extra=()):
+def make(spec, where, base=object, given=None, hidden=(), units_of=None, extra=(),
+         nested=None, inside=False):
     """Build ``spec["type"](**rest, **given)``: a class exported by ase_spin, a
-    subclass of ``base``; nested tables with a ``type`` key are built the same
-    way. Everything is checked first (:func:`check_table`); ``given``:
-    keywords the program passes itself, not from the file."""
+    subclass of ``base``; nested tables with a ``type`` key build subclasses
+    of ``nested`` the same way (None: none may). Everything is checked first
+    (:func:`check_table`); ``given``: keywords the program passes itself, not
+    from the file."""
     given = dict(given or {})
-    cls = check_table(spec, where, base, given, hidden, units_of, extra)
+    cls = check_table(spec, where, base, given, hidden, units_of, extra, nested, inside)
     label = f"{where} ({spec['type']})"
-    kwargs = {k: _value(v, f"{where}.{k}") for k, v in spec.items() if k != "type"}
+    kwargs = {k: _value(v, f"{where}.{k}", nested) for k, v in spec.items() if k != "type"}
     try:
         return cls(**kwargs, **given)
     except (TypeError, ValueError) as err:
         raise InputError(f"{label}: {err}") from None
 
 
-def _value(v, where):
+def _value(v, where, nested):
     if isinstance(v, dict):
         if "type" in v:
-            return make(v, where)
-        return {k: _value(x, f"{where}.{k}") for k, x in v.items()}
+            return make(v, where, nested, nested=nested, inside=True)
+        return {k: _value(x, f"{where}.{k}", nested) for k, x in v.items()}
     if isinstance(v, list):
-        return [_value(x, f"{where}[{k}]") for k, x in enumerate(v)]
+        return [_value(x, f"{where}[{k}]", nested) for k, x in enumerate(v)]
     return v
 
 
@@ -333,11 +404,16 @@ def _structure(table):
                              f"{_nearest(str(function), names)} ({', '.join(names)}); got "
                              f"{function!r}")
         check_keywords(recipe, getattr(build, function), f"[structure] build = {function}(...)")
+        refuse_flags(recipe, f"[structure] build = {function}(...)", getattr(build, function))
         try:
             atoms = getattr(build, function)(**recipe)
         except (TypeError, ValueError, KeyError, RuntimeError) as err:
             raise InputError(f"[structure] build = {function}(...): {err}") from None
     repeat = take(t, "structure", "repeat", None, (int, list))
+    if isinstance(repeat, list) and (len(repeat) != 3 or not all(
+            isinstance(r, int) and not isinstance(r, bool) for r in repeat)):
+        raise InputError(f"[structure] repeat must be an integer or three integers, got "
+                         f"{_as_written(repeat)}")
     if repeat is not None:
         atoms = atoms.repeat(repeat)
     rattle = take(t, "structure", "rattle", 0.0, (int, float))
@@ -359,8 +435,21 @@ def _spins(atoms, table):
         if missing:
             raise InputError(f"[spins] magnitude has no value for {', '.join(missing)} "
                              "(give 0 for a non-magnetic species)")
+        stray = sorted(set(magnitude) - set(symbols))
+        if stray:
+            raise InputError(f"[spins] magnitude has a value for {', '.join(stray)}, which "
+                             f"the structure does not have (its species: "
+                             f"{', '.join(sorted(set(symbols)))})")
+        for symbol, value in magnitude.items():
+            if not _is_number(value):
+                raise InputError(f"[spins] magnitude {symbol} must be a number (μB), got "
+                                 f"{_as_written(value)}")
         magnitude = np.array([float(magnitude[s]) for s in symbols])
     direction = take(t, "spins", "direction", None, (list, str))
+    if isinstance(direction, list) and (len(direction) != 3 or not all(
+            _is_number(x) for x in direction)):
+        raise InputError(f'[spins] direction must be three numbers or "random", got '
+                         f"{_as_written(direction)}")
     cone = take(t, "spins", "cone", None, (int, float))
     if direction is None:
         has = atoms.has("initial_magmoms") and np.ndim(atoms.arrays["initial_magmoms"]) == 2
@@ -439,7 +528,7 @@ def build_scene(spec):
     for k, term in enumerate(terms):
         if not isinstance(term, dict):
             raise InputError(f"[[terms]] #{k + 1} must be a table, got {term!r}")
-        built.append(make(term, f"[[terms]] #{k + 1}", Term))
+        built.append(make(term, f"[[terms]] #{k + 1}", Term, nested=NESTED))
     calc = dict(spec.get("calculator", {}))
     refuse_unknown(calc, "calculator", TABLE_KEYS["calculator"])
     skin = take(calc, "calculator", "skin", 0.3, (int, float))
@@ -542,7 +631,7 @@ def check_input(spec):
     for k, term in enumerate(spec.get("terms", [])):
         if not isinstance(term, dict):
             raise InputError(f"[[terms]] #{k + 1} must be a table, got {term!r}")
-        check_table(term, f"[[terms]] #{k + 1}", Term)
+        check_table(term, f"[[terms]] #{k + 1}", Term, nested=NESTED)
     # steps and timestep are checked when built (--steps may stand for steps)
     check_table(_integrator_table(spec), "[integrator]", SpinLatticeDynamics, given=_GIVEN,
                 **_INTEGRATOR_CHECK)
@@ -574,7 +663,39 @@ def warn_implausible(spec, steps):
 
 
 def _positive_number(x):
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0
+    return _is_number(x) and x > 0
+
+
+def _is_number(x):
+    """An int or a float of the file, not a true/false."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def files_read(spec):
+    """The files an input dict reads, as {what: path} (paths as written, relative
+    to the current folder): the structure file, and every string of a
+    [[terms]] table that names an existing file (an EAM potential). Outputs
+    must not be any of them (:func:`ase_spin.app.cli.run`)."""
+    found = {}
+    structure = spec.get("structure", {})
+    if isinstance(structure.get("file"), str):
+        found["the structure file ([structure] file)"] = structure["file"]
+
+    def strings(value, where):
+        if isinstance(value, str):
+            with contextlib.suppress(OSError, ValueError):
+                if Path(value).is_file():
+                    found[f"a file the terms read ({where})"] = value
+        elif isinstance(value, dict):
+            for k, v in value.items():
+                strings(v, f"{where}.{k}")
+        elif isinstance(value, list):
+            for k, v in enumerate(value):
+                strings(v, f"{where}[{k}]")
+
+    for k, term in enumerate(spec.get("terms", [])):
+        strings(term, f"[[terms]] #{k + 1}")
+    return found
 
 
 def in_input_words(warning):

@@ -21,6 +21,8 @@ spins, fields, axes) and rotated back on reading.
 
 from __future__ import annotations
 
+import os
+import shlex
 import shutil
 import warnings
 from dataclasses import dataclass
@@ -42,7 +44,7 @@ from ..terms.base import Term
 from ..terms.lammps_form import LammpsFix, LammpsPair, number_text, vector_text
 
 __all__ = ["write_lammps", "LammpsTypes", "LammpsPair", "LammpsFix",
-           "LammpsFiles", "LammpsIntegratorWarning"]
+           "LammpsFiles", "LammpsIntegratorWarning", "deck_file_name", "DECK_SPECIAL"]
 
 #: ASE time units per LAMMPS metal time unit (ps).
 PS = 1000.0 * units.fs
@@ -134,9 +136,106 @@ class LammpsFiles:
     notices: list
 
     def command(self, ranks=None):
-        """The shell command that runs the deck in its directory."""
-        run = f"lmp -in {self.input.name}"
-        return f"cd {self.directory} && " + (f"mpirun -n {ranks} {run}" if ranks else run)
+        """The shell command that runs the deck in its directory (the directory
+        and the deck's name quoted for the shell, ``ranks`` an integer >= 1)."""
+        run = f"lmp -in {shlex.quote(self.input.name)}"
+        if ranks is not None:
+            if isinstance(ranks, bool) or not isinstance(ranks, (int, np.integer)) or ranks < 1:
+                raise ValueError(f"ranks must be an integer >= 1, got {ranks!r}")
+            run = f"mpirun -n {int(ranks)} {run}"
+        return f"cd {shlex.quote(str(self.directory))} && {run}"
+
+
+# -- names in the deck --------------------------------------------------------------
+
+#: Characters a file name in the deck may not hold: LAMMPS substitutes a
+#: variable at ``$``, continues a line at ``&``, starts a comment at ``#`` and
+#: quotes at ``'`` and ``"``; a shell substitutes at a backquote and escapes at
+#: a backslash; ``*`` and ``%`` in a dump name make one file per step or per
+#: processor.
+DECK_SPECIAL = "$&#'\"`\\*%"
+
+
+def deck_file_name(name, what):
+    """``name`` if it is a plain file name that the deck can hold and that stays
+    in the deck's directory: no path separator, not ``.`` or ``..``, no
+    whitespace or control character (a newline would add a line to the deck,
+    such as ``shell rm ...``), none of :data:`DECK_SPECIAL`. Else a
+    ValueError naming ``what`` and the character."""
+    if isinstance(name, os.PathLike):
+        name = os.fspath(name)
+    if not isinstance(name, str):
+        raise TypeError(f"write_lammps: {what} must be a file name (str), got {name!r:.80}")
+    problem = None
+    if name in ("", ".", ".."):
+        problem = "is not a file name"
+    else:
+        for ch in name:
+            if ch == "/" or ch == os.sep:
+                problem = (f"holds the path separator {ch!r}: the deck's files stay in its "
+                           "directory (give a plain name)")
+            elif ch.isspace() or not ch.isprintable():
+                problem = (f"holds the whitespace or control character {ch!r}, which would "
+                           "split the deck's line or add one")
+            elif ch in DECK_SPECIAL:
+                problem = f"holds the character {ch!r}, which LAMMPS or a shell reads specially"
+            if problem:
+                break
+    if problem:
+        raise ValueError(f"write_lammps: {what} {name!r} {problem}; nothing was written")
+    return name
+
+
+def _deck_text(text, what):
+    """Text of a term's LAMMPS form (arguments, element names from a potential
+    file): one line's worth, nothing LAMMPS substitutes or comments out."""
+    text = str(text)
+    for ch in text:
+        if (ch != " " and (ch.isspace() or not ch.isprintable())) or ch in "$&#'\"`":
+            raise ValueError(f"write_lammps: {what} {text!r:.80} holds the character {ch!r}, "
+                             "which the deck cannot hold (a new line, a LAMMPS variable, "
+                             "comment or quote); nothing was written")
+    return text
+
+
+def _check_names(names, parts):
+    """The deck's file names (``names``: what -> name) as plain names; refused,
+    before anything is written: a name or a term's text that the deck cannot
+    hold (:func:`deck_file_name`), two files of one name, and potential files
+    of one name from different places."""
+    names = {what: deck_file_name(name, what) for what, name in names.items()}
+    taken = {}
+    for what, name in names.items():
+        if name in taken:
+            raise ValueError(f"write_lammps: {taken[name]} and {what} are both {name!r}: "
+                             "one would overwrite the other; nothing was written")
+        taken[name] = what
+    sources = {}
+    for term, form in parts:
+        for item in form:
+            for f in getattr(item, "files", ()):
+                base = deck_file_name(Path(f).name, f"the potential file {str(f)!r}: its name")
+                if base in taken:
+                    raise ValueError(f"write_lammps: the potential file {str(f)!r} would be "
+                                     f"copied onto the {taken[base]} {base!r}: choose another "
+                                     f"{taken[base]}; nothing was written")
+                if base in sources and not _same_file(sources[base], f):
+                    raise ValueError(f"write_lammps: the potential files {str(sources[base])!r}"
+                                     f" and {str(f)!r} have one name, {base!r}, in the deck's "
+                                     "directory: rename one; nothing was written")
+                sources[base] = f
+            texts = ([item.style, item.args] + [a for _, _, a in getattr(item, "coeffs", ())]
+                     + list(getattr(item, "modify", ())) + [getattr(item, "group", "")])
+            for text in texts:
+                _deck_text(text, f"the LAMMPS form of the {term} term,")
+    return names
+
+
+def _same_file(a, b):
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
 
 
 # -- the frame --------------------------------------------------------------
@@ -208,7 +307,9 @@ def _pair_commands(parts, directory):
         lines.append(f"pair_style {pairs[0].style} {pairs[0].args}".rstrip())
     for p in pairs:
         for f in p.files:
-            shutil.copy(f, Path(directory) / Path(f).name)
+            target = Path(directory) / Path(f).name
+            if not _same_file(f, target):  # the deck written next to the potential
+                shutil.copy(f, target)
     for k, p in enumerate(pairs):
         # a style used twice in hybrid/overlay is named with its instance number
         name = p.style
@@ -410,6 +511,12 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
         (default: the dump interval).
     seed : int
         Seed of LAMMPS's thermostats.
+    data_name, input_name, dump_name, energy_name : str
+        The files' names in ``directory``, as the deck names them: plain,
+        distinct names (no path separator, whitespace or control character,
+        none of ``$ & # ' " ` \\ * %``: :func:`deck_file_name`); potential
+        files are copied under their own names, checked alike. A name the deck
+        cannot hold is a ValueError naming it, before anything is written.
 
     Returns
     -------
@@ -453,6 +560,11 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
     parts = _term_parts(hamiltonian, types)
     for text in notices:
         warnings.warn(text, LammpsIntegratorWarning, stacklevel=2)
+
+    names = _check_names({"data_name": data_name, "input_name": input_name,
+                          "dump_name": dump_name, "energy_name": energy_name}, parts)
+    data_name, input_name = names["data_name"], names["input_name"]
+    dump_name, energy_name = names["dump_name"], names["energy_name"]
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
