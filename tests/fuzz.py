@@ -1072,6 +1072,362 @@ def _run_in_progress(folder, suffix):
     (folder / "md.traj").write_bytes(b"frames of another run")
     (folder / "md.log").write_text("Time[ps]\n")
     (folder / f"md.traj{suffix}").write_text(f"{os.getppid()} {socket.gethostname()}\n")
+# -- input data: symmetry, potential files, LAMMPS files, TB2J, ASE calculators ------
+
+_TMP = []
+
+
+def _tmp():
+    """A folder for the files the cases write (one per process)."""
+    if not _TMP:
+        _TMP.append(Path(tempfile.mkdtemp(prefix="fuzz-input-")))
+    return _TMP[0]
+
+
+def _names(path, act):
+    """``act()``, with a documented error that does not name the file turned
+    into a finding (a RuntimeError: bad-error)."""
+    try:
+        return act()
+    except DOCUMENTED as err:
+        if Path(path).name not in str(err):
+            raise RuntimeError(f"the error does not name the file: {err}") from None
+        raise
+
+
+def _crystal():
+    a = bulk("Fe", "bcc", a=2.87, cubic=True)
+    ase_spin.set_spins(a, [[0, 0, 1], [0, 0, 1]], 2.2)
+    return a
+
+
+def family_symmetry(quick=False):
+    from ase_spin import magnetic_symmetry, neighbor_shells
+
+    cases = []
+    calls = {"neighbor_shells": lambda a: neighbor_shells(a, 4.2).multiplicities(),
+             "magnetic_symmetry": lambda a: magnetic_symmetry(a).bns_number}
+    expected = {"neighbor_shells": [8, 6, 12], "magnetic_symmetry": "139.537"}
+    edits = {
+        "NaN position": lambda a: a.positions.__setitem__((1, 0), math.nan),
+        "inf position": lambda a: a.positions.__setitem__((0, 2), -math.inf),
+        "NaN cell": lambda a: a.cell.array.__setitem__((0, 0), math.nan),
+        "inf cell": lambda a: a.cell.array.__setitem__((2, 1), math.inf),
+        "position 1e18": lambda a: a.positions.__setitem__(1, a.positions[1] + 1e18),
+        "atom 3e7 cells away": lambda a: a.positions.__setitem__(0, a.positions[0]
+                                                                 + 3e7 * a.cell[0]),
+    }
+    for fname, call in calls.items():
+        for name, edit in edits.items():
+            if quick and "inf" in name:
+                continue
+            cases.append(Case("symmetry", f"{fname}: {name}", call, setup=_crystal, prepare=edit,
+                              expect="error", keywords=("position", "cell", "wrap")))
+        for far in (0, 1000) if not quick else (1000,):
+            cases.append(Case(
+                "symmetry", f"{fname}: atom {far} cells away", call, setup=_crystal,
+                prepare=lambda a, far=far: a.positions.__setitem__(
+                    1, a.positions[1] + far * a.cell[0] - 7 * a.cell[2]),
+                expect="result", check=lambda r, a, want=expected[fname]: r == want))
+    for rmax in (1e4, 1e300, 70.0) if not quick else (1e4,):
+        cases.append(Case("symmetry", f"neighbor_shells rmax = {rmax:g}",
+                          lambda a, rmax=rmax: neighbor_shells(a, rmax), setup=_crystal,
+                          expect="error", keywords=("rmax",)))
+    return cases
+
+
+def _setfl_text(nrho=20, nr=20, dr=0.3, drho=0.1, elements=("Fe", "Co")):
+    """A small setfl file of smooth functions (as tests/test_eam.py writes)."""
+    r = np.arange(nr) * dr
+    rho = np.arange(nrho) * drho
+    lines = ["DATE: today UNITS: metal", "fuzz potential", "#",
+             f"{len(elements)} " + " ".join(elements), f"{nrho} {drho!r} {nr} {dr!r} 5.7"]
+
+    def block(values):
+        return [" ".join(repr(float(v)) for v in values[k:k + 5])
+                for k in range(0, len(values), 5)]
+
+    for k, _ in enumerate(elements):
+        lines.append(f"{26 + k} 55.845 2.855 bcc")
+        lines += block(-np.sqrt(rho) * (1 + 0.1 * k))
+        lines += block(np.exp(-r) * (1 + 0.2 * k) * (5.7 - r) ** 2)
+    for a in range(len(elements)):
+        for b in range(a + 1):
+            lines += block(r * (np.exp(-2 * r) * 10 - 0.1 * np.exp(-r)) * (5.7 - r) ** 2)
+    return "\n".join(lines) + "\n"
+
+
+def _eam_energy(text, name):
+    from ase_spin import EAM
+
+    def act(a):
+        path = _tmp() / f"{name}.eam.alloy"
+        path.write_text(text)
+        term = _names(path, lambda: EAM(path))
+        b = bulk("Fe", "bcc", a=2.87, cubic=True).repeat(2)
+        b.symbols[::3] = "Co"
+        ase_spin.set_spins(b, [0, 0, 1], 2.2)
+        b.calc = SpinLatticeCalculator([term])
+        return b.get_potential_energy()
+    return act
+
+
+def family_eam_files(quick=False):
+    cases = []
+    good = _setfl_text()
+    header = "20 0.1 20 0.3 5.7"
+    reference = []
+
+    def same(result, a):
+        if not reference:
+            reference.append(_eam_energy(good, "reference")(a))
+        return result == reference[0]
+    cases.append(Case("eam_files", "good file", _eam_energy(good, "good"), expect="result",
+                      check=same))
+    steps = ["1e-20", "1e-9", "5e-324", "0", "-0.3", "nan", "inf"]
+    for v in steps[:3] if quick else steps:
+        cases.append(Case("eam_files", f"dr = {v}",
+                          _eam_energy(good.replace(header, f"20 0.1 20 {v} 5.7"), f"dr{v}"),
+                          expect="error", keywords=("dr",)))
+        cases.append(Case("eam_files", f"drho = {v}",
+                          _eam_energy(good.replace(header, f"20 {v} 20 0.3 5.7"), f"drho{v}"),
+                          expect="result" if v in ("1e-20", "1e-9") else "error",
+                          keywords=("drho",), check=lambda r, a: math.isfinite(r)))
+    counts = {"Nrho 15 (smaller)": "15 0.1 20 0.3 5.7", "Nr 15 (smaller)": "20 0.1 15 0.3 5.7",
+              "Nrho 19": "19 0.1 20 0.3 5.7", "Nr 25 (larger)": "20 0.1 25 0.3 5.7",
+              "Nr 1e12": "20 0.1 1000000000000 0.3 5.7",
+              "Nrho 1e23": "100000000000000000000000 0.1 20 0.3 5.7"}
+    for k, (name, line) in enumerate(counts.items()):
+        if quick and k % 2:
+            continue
+        cases.append(Case("eam_files", f"header {name}",
+                          _eam_energy(good.replace(header, line), f"count{k}"), expect="error",
+                          keywords=("value", "count", "truncated", "not a number")))
+    one = _setfl_text(elements=("Fe",))
+    for name, text in (("trailing values", good + "1.0 2.0\n"),
+                       ("one element, Nr 15", one.replace(header, "20 0.1 15 0.3 5.7")),
+                       ("one element, trailing line", one + "0.5 0.5 0.5 0.5 0.5\n")):
+        cases.append(Case("eam_files", name, _eam_energy(text, name.replace(" ", "_")),
+                          expect="error", keywords=("after the last block",)))
+    return cases
+
+
+_DUMP_FRAME = ("ITEM: TIMESTEP\n{step}\nITEM: NUMBER OF ATOMS\n{n}\n"
+               "ITEM: BOX BOUNDS pp pp pp\n0.0 10.0\n0.0 8.0\n0.0 6.0\n"
+               "ITEM: ATOMS {columns}\n{rows}")
+_DUMP_COLUMNS = "id type x y z sp spx spy spz"
+_DUMP_ROWS = "2 1 1.25 2 3 2.0 0 0 1\n1 2 4 5 6.5 1.5 1 0 0\n"
+
+
+def _dump(step=0, n=2, columns=_DUMP_COLUMNS, rows=_DUMP_ROWS):
+    return _DUMP_FRAME.format(step=step, n=n, columns=columns, rows=rows)
+
+
+def _read_dump(text, name):
+    from ase_spin.interop.lammps_dump import read_lammps_spin_dump
+
+    def act(a):
+        path = _tmp() / f"{name}.dump"
+        path.write_text(text)
+        return _names(path, lambda: read_lammps_spin_dump(path, symbols=["Fe", "Co"]))
+    return act
+
+
+def _frames_of(result, steps):
+    """A list of frames: a prefix of the whole dump's, each exactly right."""
+    return (isinstance(result, list) and 1 <= len(result) <= len(steps) and all(
+        f.info["timestep"] == s and np.array_equal(f.positions, [[4, 5, 6.5], [1.25, 2, 3]])
+        and np.array_equal(f.get_initial_magnetic_moments(), [[1.5, 0, 0], [0, 0, 2.0]])
+        for f, s in zip(result, steps)))
+
+
+def family_lammps_files(quick=False):
+    from ase_spin.interop.lammps import write_lammps
+
+    cases = []
+    whole = _dump(0) + _dump(10) + _dump(20)
+    last = whole.index("ITEM: TIMESTEP\n20")
+    for cut in range(last - 3, len(whole) + 1, 17 if quick else 1):
+        cases.append(Case("lammps_files", f"dump cut at byte {cut} of {len(whole)}",
+                          _read_dump(whole[:cut], f"cut{cut}"), expect="either",
+                          keywords=("cut short",),
+                          check=lambda r, a: _frames_of(r, [0, 10, 20])))
+    bad = {
+        "atom count too large": _dump(0, n=3) + _dump(10),
+        "no id column": _dump(0, columns=_DUMP_COLUMNS.replace("id ", "ID ")),
+        "no type column": _dump(0, columns=_DUMP_COLUMNS.replace("type ", "kind ")),
+        "scaled positions only": _dump(0, columns=_DUMP_COLUMNS.replace("x y z", "xs ys zs")),
+        "duplicate id": _dump(0, rows=_DUMP_ROWS.replace("2 1 1.25", "1 1 1.25")),
+        "fractional type": _dump(0, rows=_DUMP_ROWS.replace("2 1 1.25", "2 1.5 1.25")),
+        "NaN position": _dump(0, rows=_DUMP_ROWS.replace("4 5 6.5", "nan 5 6.5")),
+        "inf box": _dump(0).replace("0.0 8.0", "0.0 inf"),
+        "short row": _dump(0, rows=_DUMP_ROWS.replace("4 5 6.5", "4 5")) + _dump(10),
+        "word in a row": _dump(0, rows=_DUMP_ROWS.replace("4 5 6.5", "4 x 6.5")),
+        "fractional timestep": _dump("1.5"),
+        "binary": "\0\1\2ITEM",
+        "empty": "",
+    }
+    for k, (name, text) in enumerate(bad.items()):
+        if quick and k % 3:
+            continue
+        cases.append(Case("lammps_files", f"dump: {name}", _read_dump(text, f"bad{k}"),
+                          expect="error", keywords=("line", "frame", "text", "column")))
+
+    def write(**kw):
+        def act(a):
+            return write_lammps(_tmp() / "deck", a, **{"timestep": DT, **kw}).input.name
+        return act
+    edits = {
+        "NaN position": (lambda a: a.positions.__setitem__((1, 1), math.nan), {}, "positions"),
+        "inf velocity": (lambda a: a.arrays["momenta"].__setitem__((2, 0), math.inf), {},
+                         "velocities"),
+        "NaN timestep": (None, {"timestep": math.nan}, "timestep"),
+        "steps 2.5": (None, {"steps": 2.5}, "steps"),
+        "steps -1": (None, {"steps": -1}, "steps"),
+        "dump_interval 0.5": (None, {"dump_interval": 0.5}, "dump_interval"),
+    }
+    for k, (name, (prepare, kw, keyword)) in enumerate(edits.items()):
+        if quick and k % 2:
+            continue
+        cases.append(Case("lammps_files", f"write_lammps: {name}", write(**kw), prepare=prepare,
+                          expect="error", keywords=(keyword,)))
+    cases.append(Case("lammps_files", "write_lammps: good", write(steps=3), expect="result",
+                      check=lambda r, a: r == "in.spin"))
+    return cases
+
+
+def _tb2j_text():
+    return (HERE / "data" / "tb2j_bcc_Fe" / "exchange.out").read_text()
+
+
+def _read_tb2j(text, name):
+    from ase_spin import read_tb2j
+
+    def act(a):
+        path = _tmp() / f"{name}.out"
+        path.write_bytes(text if isinstance(text, bytes) else text.encode())
+        t = _names(path, lambda: read_tb2j(path))
+        return [(int(i), int(j), tuple(int(x) for x in R), float(J))
+                for i, j, R, J in zip(t.i, t.j, t.R, t.J)]
+    return act
+
+
+def family_tb2j(quick=False):
+    cases = []
+    text = _tb2j_text()
+    full = []
+
+    def subset(result, a):
+        if not full:
+            full.extend(_read_tb2j(text, "full")(a))
+        return len(result) > 0 and set(result) <= set(full)
+    start = text.index("Exchange:")
+    for cut in range(start - 40, len(text) + 1, 401 if quick else 7):
+        cases.append(Case("tb2j", f"cut at byte {cut} of {len(text)}",
+                          _read_tb2j(text[:cut], f"cut{cut}"), expect="either",
+                          keywords=("line", "section", "pair", "atom"), check=subset))
+    bad = {
+        "pair line cut inside": text.replace("(-1.415, -1.415, -1.415)  2.451", "(-1.4", 1),
+        "wrong distance": text.replace("(-1.415, -1.415, -1.415)  2.451",
+                                       "(-1.415, -1.415, -1.415)  2.1", 1),
+        "NaN moment": text.replace("2.5763", "nan", 1),
+        "inf J": text.replace("19.6502   (-1.415", "inf   (-1.415", 1),
+        "NaN cell": text.replace("2.83000000  0.00000000", "nan  0.00000000", 1),
+        "unknown element": text.replace("Fe1 ", "Xq1 ").replace("Fe1)", "Xq1)"),
+        "huge R": text.replace("( -1,  -1,  -1)", "(-99999999999999999999, -1, -1)", 1),
+        "NUL bytes": text.replace("Exchange:", "Exchange:\0\1", 1),
+        "not UTF-8": text.replace("Exchange:", "Exchange: \xff", 1).encode("latin-1"),
+    }
+    for k, (name, bad_text) in enumerate(bad.items()):
+        if quick and k % 2:
+            continue
+        cases.append(Case("tb2j", name, _read_tb2j(bad_text, f"bad{k}"), expect="error",
+                          keywords=("line", "text file")))
+    return cases
+
+
+def family_ase_calculators(quick=False):
+    from ase.calculators.calculator import Calculator, all_changes
+
+    class Springs(Calculator):
+        implemented_properties = ("energy", "forces")
+
+        def __init__(self, bad=None, delay=0.0):
+            super().__init__()
+            self.bad, self.delay = bad, delay
+
+        def calculate(self, atoms=None, properties=("energy",), system_changes=all_changes):
+            import time
+
+            super().calculate(atoms, properties, system_changes)
+            time.sleep(self.delay)
+            x = self.atoms.positions
+            self.results = {"energy": 0.5 * (x ** 2).sum(), "forces": -x.copy()}
+            if self.bad == "forces of one atom":
+                self.results["forces"] = -x[:1].copy()
+            elif self.bad == "forces (3,)":
+                self.results["forces"] = np.ones(3)
+            elif self.bad == "forces transposed":
+                self.results["forces"] = -x.T.copy()
+            elif self.bad == "string energy":
+                self.results["energy"] = "1.5"
+            elif self.bad == "complex energy":
+                self.results["energy"] = 1.5 + 0j
+            elif self.bad == "None energy":
+                self.results["energy"] = None
+            elif self.bad == "changes the cell":
+                atoms.set_cell(atoms.cell.array * 1.5, scale_atoms=True)
+            elif self.bad == "changes pbc":
+                atoms.pbc = False
+
+    def with_calculator(bad):
+        def act(a):
+            a.calc = SpinLatticeCalculator([Springs(bad), terms()[1]])
+            return {"energy": a.get_potential_energy(), "forces": a.get_forces()}
+        return act
+
+    cases = []
+    kinds = ["forces of one atom", "forces (3,)", "forces transposed", "string energy",
+             "complex energy", "None energy", "changes the cell", "changes pbc"]
+    for k, bad in enumerate(kinds):
+        if quick and k % 2:
+            continue
+        cases.append(Case("ase_calculators", bad, with_calculator(bad), expect="error",
+                          keywords=("springs",)))
+
+    def springs_and_exchange(result, a):
+        b = a.copy()
+        b.calc = SpinLatticeCalculator([terms()[1]])
+        return np.allclose(result["forces"], b.get_forces() - a.positions, rtol=0, atol=1e-12)
+    cases.append(Case("ase_calculators", "good", with_calculator(None), expect="result",
+                      check=springs_and_exchange))
+
+    def threads(a):
+        import threading
+
+        shared = Springs(delay=0.001)
+        scenes = [scene(seed) for seed in (1, 2)]
+        for b in scenes:
+            b.calc = SpinLatticeCalculator([shared, terms()[1]])
+        wrong = []
+
+        def work(b):
+            for k in range(10):
+                b.positions[0, 0] += 1e-3  # a new state: a new calculation
+                f = b.get_forces()
+                alone = b.copy()  # the same with a calculator of its own
+                alone.calc = SpinLatticeCalculator([Springs(), terms()[1]])
+                if not np.array_equal(f, alone.get_forces()):
+                    wrong.append(k)
+        workers = [threading.Thread(target=work, args=(b,)) for b in scenes]
+        for w in workers:
+            w.start()
+        for w in workers:
+            w.join()
+        return len(wrong)
+    cases.append(Case("ase_calculators", "one calculator, two threads", threads,
+                      expect="result", check=lambda wrong, a: wrong == 0))
+    return cases
 
 
 def families(quick=False):
@@ -1093,6 +1449,11 @@ def families(quick=False):
         "langevin": family_langevin(stride=61 if quick else 1),
         "systems": family_systems(),
         "security": family_security(),
+        "symmetry": family_symmetry(quick),
+        "eam_files": family_eam_files(quick),
+        "lammps_files": family_lammps_files(quick),
+        "tb2j": family_tb2j(quick),
+        "ase_calculators": family_ase_calculators(quick),
     }
 
 

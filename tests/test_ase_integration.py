@@ -4,12 +4,15 @@ complete trajectories, objects that pickle and copy, clear warnings."""
 import copy
 import os
 import pickle
+import threading
+import time
 import warnings
 
 import numpy as np
 import pytest
 from ase import Atoms, units
 from ase.build import bulk
+from ase.calculators.calculator import Calculator, all_changes
 from ase.calculators.emt import EMT
 from ase.calculators.lj import LennardJones as AseLJ
 
@@ -148,6 +151,87 @@ def test_wrapping_errors_are_clear():
     atoms.calc.hamiltonian.terms[0].calculator.implemented_properties = ["energy", "forces"]
     with pytest.raises(Exception, match="does not give energies"):
         atoms.calc.get_property("energies", atoms)
+
+
+class Springs(Calculator):
+    """E = Σ k|r_i|²/2 in Python, slow on purpose (``delay`` s between taking
+    the Atoms and giving results), or broken in one way (``bad``)."""
+
+    implemented_properties = ("energy", "forces")
+
+    def __init__(self, bad=None, delay=0.0):
+        super().__init__()
+        self.bad, self.delay = bad, delay
+
+    def calculate(self, atoms=None, properties=("energy",), system_changes=all_changes):
+        super().calculate(atoms, properties, system_changes)
+        time.sleep(self.delay)
+        x = self.atoms.positions
+        self.results = {"energy": 0.5 * (x ** 2).sum(), "forces": -x.copy()}
+        if self.bad == "forces of one atom":
+            self.results["forces"] = -x[:1].copy()
+        elif self.bad == "forces of one vector":
+            self.results["forces"] = np.ones(3)
+        elif self.bad == "string energy":
+            self.results["energy"] = "1.5"
+        elif self.bad == "energy array":
+            self.results["energy"] = np.ones(2)
+        elif self.bad == "changes the cell":
+            atoms.set_cell(atoms.cell.array * 1.5, scale_atoms=True)
+        elif self.bad == "changes pbc":
+            atoms.pbc = False
+
+
+@pytest.mark.parametrize("bad, error, match", [
+    ("forces of one atom", ValueError, (r"forces springs \(Springs\) gave must have shape "
+                                        r"\(8, 3\) \(one row per atom\), got \(1, 3\)")),
+    ("forces of one vector", ValueError, r"got \(3,\)"),
+    ("string energy", TypeError, r"energy springs \(Springs\) gave must be real numbers"),
+    ("energy array", ValueError, r"energy springs \(Springs\) gave must be one number"),
+    ("changes the cell", ValueError, r"changed the cell, periodicity or atomic numbers"),
+    ("changes pbc", ValueError, r"changed the cell, periodicity or atomic numbers"),
+])
+def test_what_a_calculator_gives_is_checked(bad, error, match):
+    """Forces of a wrong shape were broadcast onto every atom, a string energy
+    was taken, and a calculator that changed the cell or pbc of the Atoms it
+    was handed changed every later result."""
+    atoms = bulk("Cu", "fcc", a=3.6, cubic=True).repeat((2, 1, 1))
+    atoms.calc = SpinLatticeCalculator([Springs(bad)])
+    before = atoms.copy()
+    with pytest.raises(error, match=match):
+        atoms.get_forces()
+    assert atoms == before
+    # nothing of the term changed: a good calculator in its place gives its results
+    atoms.calc.hamiltonian.terms[0].calculator = Springs()
+    np.testing.assert_array_equal(atoms.get_forces(), -atoms.positions)
+
+
+def test_one_calculator_in_two_threads_gives_each_its_own_forces():
+    """Two Atoms sharing one calculator, evaluated in two threads: each gets
+    the forces of its own positions (the calculator keeps its results in
+    itself; calls into it are serialised)."""
+    shared = Springs(delay=0.002)
+    scenes = []
+    for seed in (1, 2):
+        a = bulk("Cu", "fcc", a=3.6, cubic=True)
+        a.rattle(0.1, seed=seed)
+        a.calc = SpinLatticeCalculator([shared])
+        scenes.append(a)
+    wrong = []
+
+    def work(a):
+        for k in range(15):
+            a.positions[0, 0] += 1e-3  # a new state each time: a new calculation
+            f = a.get_forces()
+            if not np.array_equal(f, -a.positions):
+                wrong.append(k)
+
+    threads = [threading.Thread(target=work, args=(a,)) for a in scenes]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not wrong
 
 
 @pytest.mark.parametrize("integrator", [CollectivePRK, SuzukiTrotter])

@@ -184,6 +184,19 @@ def test_synthetic_setfl_reads_and_evaluates(tmp_path):
     (lambda t: t.replace("20 0.1 20 0.3 5.7", "20 0.1 2.5 0.3 5.7"), 5, "not an integer"),
     (lambda t: "\n".join(x if k != 8 else x.replace(x.split()[0], "nan", 1)
                          for k, x in enumerate(t.splitlines())), 9, "not finite"),
+    # a tiny dr: the table index r/dr + 1 used to overflow (energies 9e205, NaN)
+    (lambda t: t.replace("20 0.1 20 0.3 5.7", "20 0.1 20 1e-20 5.7"), 5,
+     "dr = 1e-20 is too small for the cutoff 5.7"),
+    (lambda t: t.replace("20 0.1 20 0.3 5.7", "20 5e-324 20 0.3 5.7"), 5,
+     "1/drho overflows"),
+    # counts smaller than the blocks, or values after them: used to shift values
+    # from block to block silently
+    (lambda t: t.replace("20 0.1 20 0.3 5.7", "15 0.1 20 0.3 5.7"), 14,
+     "the blocks of Fe hold more values than the header's counts (Nrho = 15, Nr = 20)"),
+    (lambda t: t + "1.0 2.0\n", 36, "2 value(s) after the last block (r*phi(r) of Co-Co)"),
+    # a huge count: used to end in a MemoryError without the file's name
+    (lambda t: t.replace("20 0.1 20 0.3 5.7", "20 0.1 1000000000000 0.3 5.7"), None,
+     "truncated: rho(r) of Fe needs 1000000000000 values from line 11 on"),
 ])
 def test_malformed_files_are_named_errors(tmp_path, corrupt, line, words):
     good = _write_setfl(tmp_path / "good.eam.alloy")
@@ -194,6 +207,57 @@ def test_malformed_files_are_named_errors(tmp_path, corrupt, line, words):
     msg = str(err.value)
     assert str(bad) in msg and words in msg, msg
     assert (f"line {line}:" in msg) if line else ("end of file" in msg), msg
+
+
+def _write_funcfl(path, nrho=10, nr=10, dr=0.5, extra="", said_nrho=None):
+    """A small funcfl file (``said_nrho``: the count its header gives for F)."""
+    lines = ["test funcfl", "26 55.845 2.855 bcc",
+             f"{said_nrho or nrho} 0.1 {nr} {dr!r} 4.5"]
+    for n in (nrho, nr, nr):
+        values = np.linspace(1.0, 0.1, n)
+        lines += [" ".join(repr(float(v)) for v in values[k:k + 5]) for k in range(0, n, 5)]
+    path.write_text("\n".join(lines) + "\n" + extra)
+    return path
+
+
+def test_counts_that_do_not_match_the_blocks_are_refused(tmp_path):
+    """One element (no 'Z mass' line between blocks) and funcfl: a count
+    smaller than its block shows as values after the last block."""
+    text = _write_setfl(tmp_path / "Fe.eam.alloy", elements=("Fe",)).read_text()
+    (tmp_path / "short.eam.alloy").write_text(text.replace("20 0.1 20 0.3 5.7",
+                                                           "20 0.1 15 0.3 5.7"))
+    with pytest.raises(EAMFileError, match=r"short.eam.alloy, line 17: 10 value\(s\) after "
+                                           r"the last block \(r\*phi\(r\) of Fe-Fe\)"):
+        EAM(tmp_path / "short.eam.alloy")
+    assert EAM(_write_funcfl(tmp_path / "Fe.eam")).cutoff == 4.5
+    with pytest.raises(EAMFileError, match=r"trail.eam, line 10: 1 value\(s\) after the "
+                                           r"last block \(rho\(r\)\)"):
+        EAM(_write_funcfl(tmp_path / "trail.eam", extra="0.0\n"))
+    with pytest.raises(EAMFileError, match=r"huge.eam, end of file: truncated: F\(rho\) needs "
+                                           r"10000000000 values from line 4 on"):
+        EAM(_write_funcfl(tmp_path / "huge.eam", said_nrho=10 ** 10))
+    with pytest.raises(EAMFileError, match="tiny.eam, line 3: dr = 1e-12 is too small"):
+        EAM(_write_funcfl(tmp_path / "tiny.eam", dr=1e-12))
+
+
+def test_funcfl_files_whose_common_grid_overflows_a_table_index(tmp_path):
+    """funcfl files are re-gridded onto the common range: one with a tiny step
+    next to one with a long range would index beyond an int."""
+    from ase_spin.terms.eam_files import lammps_arrays, read_potential
+
+    wide = _write_funcfl(tmp_path / "Fe.eam", nr=20, dr=0.5)
+    fine = _write_funcfl(tmp_path / "Co.eam", nr=40, dr=0.1)
+    fine.write_text(fine.read_text().replace("26 55.845", "27 58.93", 1))
+    data = read_potential([wide, fine])
+    assert lammps_arrays(data, (0, 1)).nr == 19  # 9.5 Å in steps of 0.5
+    long_range = _write_funcfl(tmp_path / "Ni.eam", nr=10, dr=1e6)
+    steps = _write_funcfl(tmp_path / "Cu.eam", nr=10, dr=1e-4)
+    steps.write_text(steps.read_text().replace("26 55.845", "29 63.5", 1))
+    long_range.write_text(long_range.read_text().replace("26 55.845", "28 58.7", 1)
+                          .replace("4.5\n", "1e6\n", 1))
+    data = read_potential([long_range, steps])
+    with pytest.raises(EAMFileError, match="Cu.eam: its grid step in r"):
+        lammps_arrays(data, (0, 1))
 
 
 def test_file_and_format_errors(tmp_path):

@@ -321,6 +321,80 @@ def test_reader_names_types_from_symbols_or_data_and_refuses_without(tmp_path):
     assert a.info["timestep"] == 5
 
 
+_FRAME = ("ITEM: TIMESTEP\n{step}\nITEM: NUMBER OF ATOMS\n{n}\n"
+          "ITEM: BOX BOUNDS pp pp pp\n0.0 10.0\n0.0 8.0\n0.0 6.0\n"
+          "ITEM: ATOMS {columns}\n{rows}")
+_COLUMNS = "id type x y z sp spx spy spz"
+_ROWS = "2 1 1 2 3 2.0 0 0 1\n1 2 4 5 6 1.5 1 0 0\n"
+
+
+def _dump(step=0, n=2, columns=_COLUMNS, rows=_ROWS):
+    return _FRAME.format(step=step, n=n, columns=columns, rows=rows)
+
+
+def test_a_dump_cut_short_gives_its_complete_frames_with_a_warning(tmp_path):
+    """A dump whose end is cut (a run still going or killed; in a number, at a
+    line, in a header) gives its complete frames and a warning naming the cut
+    one; it used to return a cut number as data or an IndexError."""
+    from ase_spin.interop.lammps_dump import LammpsDumpWarning
+
+    whole = _dump(0) + _dump(10) + _dump(20)
+    for cut, before in ((whole[:-5], "row 2 of 2"), (whole[:whole.rindex("1 2 4")], "row 2"),
+                        (whole[:whole.rindex("ITEM: NUMBER")], "NUMBER OF ATOMS")):
+        (tmp_path / "cut.dump").write_text(cut)
+        with pytest.warns(LammpsDumpWarning, match=f"frame 2 \\(timestep 20\\), from line 23, "
+                                                   f"is cut short: the file ends before .*{before}"):
+            frames = read_lammps_spin_dump(tmp_path / "cut.dump", symbols=["Fe", "Co"])
+        assert [f.info["timestep"] for f in frames] == [0, 10]
+        assert np.array_equal(frames[1].positions, [[4, 5, 6], [1, 2, 3]])
+    (tmp_path / "first.dump").write_text(_dump(0)[:-8])
+    with pytest.raises(ValueError, match="frame 0 .* cut short.*no frame is complete"):
+        read_lammps_spin_dump(tmp_path / "first.dump", symbols=["Fe", "Co"])
+
+
+@pytest.mark.parametrize("text, match", [
+    # an atom count larger than the rows: used to drop the later frames silently
+    (_dump(0, n=3) + _dump(10), r"says 3 atoms, but line 12 starts the next item after 2 rows"),
+    (_dump(0, columns=_COLUMNS.replace("id ", "ID ")), r"line 9: no 'id' column"),
+    (_dump(0, columns=_COLUMNS.replace("type ", "kind ")), r"line 9: no 'type' column"),
+    (_dump(0, columns=_COLUMNS.replace("x y z", "xs ys zs")), r"line 9: no positions"),
+    (_dump(0, rows=_ROWS.replace("2 1 1", "1 1 1")), r"lines 10 and 11: atom id 1 appears twice"),
+    (_dump(0, rows=_ROWS.replace("2 1 1", "2 1.5 1")), r"line 10: the atom type 1.5 is not an int"),
+    (_dump(0, rows=_ROWS.replace("2 1 1", "2.5 1 1")), r"line 10: the atom id 2.5 is not an int"),
+    (_dump(0, rows=_ROWS.replace("4 5 6", "nan 5 6")), r"line 11: .*'nan' is not a finite"),
+    (_dump(0, rows=_ROWS.replace("4 5 6", "4 5")), r"line 11: .*8 values, expected 9"),
+    (_dump(0).replace("0.0 8.0", "0.0 inf"), r"line 7: the box .*'inf' is not a finite"),
+    (_dump("1.5"), r"line 2: the timestep must be an integer"),
+    ("", "no frame"),
+    ("\0\1ITEM", "not a text file"),
+])
+def test_malformed_dumps_are_named_errors(tmp_path, text, match):
+    (tmp_path / "bad.dump").write_text(text)
+    with pytest.raises(ValueError, match="bad.dump.*" + match):
+        read_lammps_spin_dump(tmp_path / "bad.dump", symbols=["Fe", "Co"])
+
+
+@pytest.mark.parametrize("edit, keywords, match", [
+    (lambda a: a.positions.__setitem__((1, 1), np.nan), {}, "positions of atom 1 are not fin"),
+    (lambda a: a.set_velocities(np.full((len(a), 3), np.inf)), {}, "velocities of atom 0"),
+    (lambda a: None, {"timestep": np.nan}, "timestep must be finite"),
+    (lambda a: None, {"steps": 2.5}, "steps must be an integer"),
+    (lambda a: None, {"dump_interval": 2.5}, "dump_interval must be an integer"),
+    (lambda a: None, {"thermo_interval": 0}, "thermo_interval must be at least 1"),
+])
+def test_write_lammps_refuses_non_finite_state_and_fractional_counts(tmp_path, edit, keywords,
+                                                                     match):
+    """NaN positions, velocities and timestep used to be written, and a
+    fractional step count truncated; nothing is written now."""
+    atoms = bulk("Co", "fcc", a=3.54, cubic=True)
+    ase_spin.set_spins(atoms, [0, 0, 1], 1.6)
+    atoms.calc = ase_spin.SpinLatticeCalculator([ase_spin.LennardJones(0.4, 2.27, 4.7)])
+    edit(atoms)
+    with pytest.raises((ValueError, TypeError), match=match):
+        write_lammps(tmp_path / "run", atoms, **{"timestep": units.fs, **keywords})
+    assert not (tmp_path / "run").exists()
+
+
 def test_terms_without_lammps_counterpart_are_refused_by_name(tmp_path):
     """Cubic coupling, a user coupling and ASE's smooth LJ: one error naming
     each, and nothing written."""

@@ -2,6 +2,7 @@
 per-shell exchange, TB2J's exchange.out, magnetic space groups."""
 
 import os
+import re
 import warnings
 
 import numpy as np
@@ -101,6 +102,47 @@ def test_shells_refuse_what_is_not_a_crystal():
         neighbor_shells(atoms, -1.0)
     with pytest.raises(ValueError, match="no pair"):
         neighbor_shells(atoms, 1.0)
+
+
+@pytest.mark.parametrize("function", [lambda a: neighbor_shells(a, 3.0), magnetic_symmetry],
+                         ids=["neighbor_shells", "magnetic_symmetry"])
+@pytest.mark.parametrize("edit, match", [
+    (lambda a: a.positions.__setitem__((1, 0), np.nan), "position of atom 1 is not finite"),
+    (lambda a: a.positions.__setitem__((0, 2), -np.inf), "position of atom 0 is not finite"),
+    (lambda a: a.cell.array.__setitem__((0, 0), np.nan), "cell has non-finite"),
+    (lambda a: a.cell.array.__setitem__((2, 1), np.inf), "cell has non-finite"),
+    (lambda a: a.positions.__setitem__(1, a.positions[1] + 1e18), "atom 1 lies .* wrap"),
+    (lambda a: a.positions.__setitem__(0, [3e7, 0, 0]), "atom 0 lies .* wrap"),
+])
+def test_symmetry_refuses_what_spglib_cannot_take(function, edit, match):
+    """NaN/inf used to kill the interpreter inside spglib; an atom 1e18 Å away
+    gave a wrong space group (its fractional coordinate is rounding noise)."""
+    atoms = bulk("Fe", "bcc", a=A_BCC, cubic=True)
+    edit(atoms)
+    before = (atoms.positions.copy(), atoms.cell.array.copy())
+    with pytest.raises(ValueError, match=match):
+        function(atoms)
+    np.testing.assert_array_equal(atoms.positions, before[0])
+    np.testing.assert_array_equal(atoms.cell.array, before[1])
+
+
+def test_symmetry_takes_atoms_a_few_cells_away():
+    atoms = bulk("Fe", "bcc", a=A_BCC, cubic=True)
+    far = atoms.copy()
+    far.positions[1] += 1000 * far.cell[0] - 7 * far.cell[2]
+    assert magnetic_symmetry(far).bns_number == magnetic_symmetry(atoms).bns_number
+    assert neighbor_shells(far, 4.2).multiplicities() == [8, 6, 12]
+
+
+def test_neighbor_shells_refuses_an_rmax_beyond_its_memory_limit():
+    """A huge rmax used to run out of memory after minutes: now refused before
+    any pair is listed, from the estimated number of pairs."""
+    from ase_spin.interop.symmetry import MAX_PAIR_ROWS
+
+    atoms = bulk("Fe", "bcc", a=A_BCC)
+    for rmax in (1e4, 1e300, 70.0):  # 70 Å: 1.2e5 pairs x 49 operations
+        with pytest.raises(ValueError, match=re.escape(f"{MAX_PAIR_ROWS:.3g} rows")):
+            neighbor_shells(atoms, rmax)
 
 
 # ---------------------------------------------------------------- Tabulated
@@ -308,6 +350,61 @@ def test_read_tb2j_older_labels_and_errors(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         read_tb2j(TB2J_DIR).exchange()
+
+
+def _tb2j_text():
+    with open(os.path.join(TB2J_DIR, "exchange.out")) as f:
+        return f.read()
+
+
+def _nth_pair_line(text, n):
+    lines = text.splitlines(keepends=True)
+    k = [i for i, line in enumerate(lines) if line.startswith("   Fe")][n]
+    return lines, k
+
+
+@pytest.mark.parametrize("edit, match", [
+    # a pair line cut in the middle (a file cut short): used to be dropped silently
+    (lambda t: t[:t.index("(  0,   0,   0) 19.6502") + 20], r"line \d+: a pair line that does"),
+    (lambda t: t.replace("(-1.415, -1.415, -1.415)  2.451", "(-1.415, -1.4", 1),
+     r"line 25: a pair line that does not read"),
+    # cut in the distance, the last line: reads as a pair, but has no newline
+    (lambda t: t[:t.index("2.451", t.index("Fe2   Fe1")) + 3], r"line 57: the file ends within this pair line"),
+    (lambda t: t.replace("(-1.415, -1.415, -1.415)  2.451", "(-1.415, -1.415, -1.415)  2.1", 1),
+     r"line 25: the pair's distance 2.1"),
+    (lambda t: t.replace("2.5763", "nan", 1), r"line 17: .* must be finite"),
+    (lambda t: t.replace("19.6502   (-1.415", "inf   (-1.415", 1), r"line 25: J, .* finite"),
+    (lambda t: t.replace("2.83000000  0.00000000", "nan  0.00000000", 1), r"line 9: the cell"),
+    (lambda t: t.replace("Fe1 ", "Xq1 ").replace("Fe1)", "Xq1)"), r"line 17: .*'Xq1' names no"),
+    (lambda t: t.replace("( -1,  -1,  -1)", "(-99999999999999999999, -1, -1)", 1),
+     r"line 25: the lattice image R = \(-99999999999999999999, -1, -1\) is more than 1000"),
+    (lambda t: t.replace("Exchange:", "Exchange:\0\1", 1), r"not a text file"),
+    (lambda t: t.replace("Exchange:", "Exchange: \xff", 1).encode("latin-1"), "not a text file"),
+])
+def test_read_tb2j_refuses_what_it_cannot_read(tmp_path, edit, match):
+    bad = edit(_tb2j_text())
+    path = tmp_path / "exchange.out"
+    if isinstance(bad, bytes):
+        path.write_bytes(bad)
+    else:
+        path.write_text(bad)
+    with pytest.raises(ValueError, match="exchange.out: " + match):
+        read_tb2j(path)
+
+
+def test_read_tb2j_counts_pairs_listed_in_one_direction():
+    """A file cut at a line boundary: the pairs whose other direction is lost
+    are counted in a warning (TB2J lists both)."""
+    text = _tb2j_text()
+    lines, k = _nth_pair_line(text, 8)  # the first 8 lines: Fe1-Fe2 in one direction
+    path = os.path.join(os.environ.get("TMPDIR", "/tmp"), f"tb2j-cut-{os.getpid()}.out")
+    with open(path, "w") as f:
+        f.write("".join(lines[:k]))
+    try:
+        with pytest.warns(UserWarning, match="8 of the 8 pairs are listed in one direction"):
+            assert len(read_tb2j(path)) == 8
+    finally:
+        os.remove(path)
 
 
 # ---------------------------------------------------------------- magnetic symmetry

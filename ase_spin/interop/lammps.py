@@ -42,6 +42,7 @@ from ..md.splitting import SuzukiTrotter
 from ..spins import get_moments, split_moments
 from ..terms.base import Term
 from ..terms.lammps_form import LammpsFix, LammpsPair, number_text, vector_text
+from ..validate import integer, positive_scalar, real_array
 
 __all__ = ["write_lammps", "LammpsTypes", "LammpsPair", "LammpsFix",
            "LammpsFiles", "LammpsIntegratorWarning", "deck_file_name", "DECK_SPECIAL"]
@@ -344,7 +345,7 @@ def _integrator(dyn, timestep, lattice, notices):
                              "or timestep= (ASE time units, e.g. 0.1 * ase.units.fs)")
         if lattice not in ("moving", "frozen"):
             raise ValueError(f'lattice must be "moving" or "frozen", got {lattice!r}')
-        return float(timestep), lattice, None
+        return positive_scalar(timestep, "write_lammps timestep"), lattice, None
     if not isinstance(dyn, SpinLatticeDynamics):
         raise TypeError(f"write_lammps takes an ase_spin integrator, got {type(dyn).__name__}")
     if dyn.precession != "moment":
@@ -383,6 +384,18 @@ def _integrator(dyn, timestep, lattice, notices):
                           alpha=float(dyn.spin_damping),
                           friction=float(_attr(dyn, ("friction", "fr"), 0.0) or 0.0))
     return float(dyn.dt), "frozen" if dyn.frozen_lattice else "moving", thermostat
+
+
+def _check_finite_state(atoms):
+    """Refuse NaN/inf in what the data file holds: positions, velocities, cell."""
+    for what, values in (("positions", atoms.positions), ("velocities", atoms.get_velocities()),
+                         ("cell", atoms.cell.array)):
+        values = real_array(values, f"write_lammps: the {what}")
+        bad = np.argwhere(~np.isfinite(values))
+        if len(bad):
+            where = "" if what == "cell" else f" of atom {bad[0][0]}"
+            raise ValueError(f"write_lammps: the {what}{where} are not finite: "
+                             f"{values[bad[0][0]].tolist()}")
 
 
 def _attr(obj, names, default):
@@ -499,13 +512,15 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
         Langevin) adds ``fix langevin/spin T α seed`` and, with a friction,
         a lattice ``fix langevin T T 1/friction seed``.
     steps : int
-        Steps the deck runs (``run steps``).
+        Steps the deck runs (``run steps``): an integer >= 0 (a float such as
+        2.5 is refused, not truncated).
     hamiltonian : Hamiltonian, SpinLatticeCalculator or list of terms, optional
         Default ``atoms.calc``'s. Every term must have a LAMMPS form
         (``term.lammps(types)``); those without are refused, all named in one
         NotImplementedError.
     timestep : float, optional
-        ASE time units, when no integrator is given (with ``lattice``).
+        ASE time units, when no integrator is given (with ``lattice``): finite
+        and positive. NaN/inf positions, velocities or cell are refused too.
     dump_interval, thermo_interval : int
         Steps between dump frames (and energy lines), and thermo lines
         (default: the dump interval).
@@ -524,13 +539,12 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
         The paths, the type symbols, the notices issued; ``.command(ranks)``
         is the shell line that runs it.
     """
-    steps = int(steps)
-    if steps < 0:
-        raise ValueError(f"steps must be >= 0, got {steps}")
-    dump_interval = int(dump_interval)
-    if dump_interval < 1:
-        raise ValueError(f"dump_interval must be >= 1, got {dump_interval}")
-    thermo_interval = dump_interval if thermo_interval is None else int(thermo_interval)
+    steps = integer(steps, "write_lammps steps", minimum=0)
+    dump_interval = integer(dump_interval, "write_lammps dump_interval", minimum=1)
+    thermo_interval = dump_interval if thermo_interval is None else integer(
+        thermo_interval, "write_lammps thermo_interval", minimum=1)
+    seed = integer(seed, "write_lammps seed", minimum=1)
+    _check_finite_state(atoms)
     if dynamics is not None and dynamics.atoms is not atoms:
         raise ValueError("write_lammps: the integrator holds other Atoms than those given")
     others = lattice_constraints(atoms)

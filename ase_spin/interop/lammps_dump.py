@@ -5,6 +5,7 @@ calculator results (the conventions of :mod:`ase_spin.interop.lammps`)."""
 from __future__ import annotations
 
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -13,14 +14,15 @@ from ase import Atoms
 from ..constants import HBAR_LAMMPS
 from .lammps import HEADER, PS
 
-__all__ = ["read_lammps_spin_dump"]
+__all__ = ["LammpsDumpWarning", "read_lammps_spin_dump"]
 
 
 def _read_data_header(path):
     """(symbols by type, rotation or None) from a data file written here, or
     from its Atom Type Labels section (rotation None) for any other."""
-    text = Path(path).read_text()
-    first = text.split("\n", 1)[0]
+    lines, _ = _read_text(path, "a LAMMPS data file")
+    text = "\n".join(lines) + "\n"
+    first = lines[0] if lines else ""
     m = re.match(re.escape(HEADER) + r"; types (.*); rotation (.*)$", first)
     if m:
         rot = m.group(2).strip()
@@ -33,33 +35,146 @@ def _read_data_header(path):
     raise ValueError(f"{path}: no type labels found; pass symbols= to name the types")
 
 
+class LammpsDumpWarning(UserWarning):
+    """A dump whose last frame is cut short (the run is still going or was
+    killed): the complete frames before it are read, the cut one is left out."""
+
+
+def _read_text(path, what):
+    """A text file's lines, and whether its last line is cut (no newline at
+    the end: LAMMPS writes whole lines)."""
+    with open(path, "rb") as fh:
+        raw = fh.read()
+    if b"\0" in raw:
+        raise ValueError(f"{path}: not a text file (contains NUL bytes); expected {what}")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise ValueError(f"{path}: not a text file (byte {err.start} is not UTF-8); "
+                         f"expected {what}") from None
+    return text.splitlines(), bool(text) and not text.endswith(("\n", "\r"))
+
+
+class _Cut(Exception):
+    """The file ends inside a frame."""
+
+
 def _frames(path):
-    """Each frame of a LAMMPS text dump: (timestep, box lines, bounds header,
-    columns, rows)."""
-    with open(path) as fh:
-        lines = fh.read().splitlines()
+    """Each complete frame of a LAMMPS text dump: (timestep, box lines, bounds
+    header, columns, rows, first row's line number). A frame cut short by the
+    end of the file (a run still going or killed) is left out with a
+    :class:`LammpsDumpWarning` naming it; anything else malformed is a
+    ValueError naming the file and the line."""
+    lines, last_cut = _read_text(path, "a LAMMPS text dump")
+    usable = len(lines) - 1 if last_cut else len(lines)  # complete lines
+    frames = []
     k = 0
+
+    def line(j, what):
+        if j >= usable:
+            raise _Cut(what)
+        return lines[j]
+
+    def item(j, name):
+        text = line(j, f"the line 'ITEM: {name}'")
+        if not text.startswith(f"ITEM: {name}"):
+            raise ValueError(f"{path}: line {j + 1} should be 'ITEM: {name}' "
+                             f"(frame {len(frames)}), got {text[:80]!r}")
+        return text
+
+    def integer(j, what):
+        text = line(j, what).strip()
+        try:
+            return int(text)
+        except ValueError:
+            raise ValueError(f"{path}: line {j + 1}: {what} must be an integer, got "
+                             f"{text[:80]!r}") from None
+
     while k < len(lines):
-        if not lines[k].startswith("ITEM: TIMESTEP"):
-            raise ValueError(f"{path}: line {k + 1} is not a dump frame header: {lines[k]!r}")
-        step = int(lines[k + 1])
-        n = int(lines[k + 3])
-        bounds = lines[k + 4]
-        box = lines[k + 5:k + 8]
-        columns = lines[k + 8].split()[2:]
-        rows = lines[k + 9:k + 9 + n]
-        if len(rows) < n:
-            return  # a frame cut short: the run is still going or was killed
-        yield step, bounds, box, columns, rows
+        if not lines[k].strip() and all(not x.strip() for x in lines[k:]):
+            break  # blank lines at the end
+        start = k
+        step = None
+        try:
+            item(k, "TIMESTEP")
+            step = integer(k + 1, "the timestep")
+            item(k + 2, "NUMBER OF ATOMS")
+            n = integer(k + 3, "the number of atoms")
+            if n < 0:
+                raise ValueError(f"{path}: line {k + 4}: the number of atoms is {n}")
+            bounds = item(k + 4, "BOX BOUNDS")
+            box = [line(k + 5 + d, "the box") for d in range(3)]
+            columns = item(k + 8, "ATOMS").split()[2:]
+            rows = []
+            for r in range(n):
+                j = k + 9 + r
+                if j < len(lines) and lines[j].startswith("ITEM:"):
+                    raise ValueError(
+                        f"{path}: frame {len(frames)} (timestep {step}, line {start + 1}) says "
+                        f"{n} atoms, but line {j + 1} starts the next item after {r} rows")
+                text = line(j, f"row {r + 1} of {n}")
+                rows.append(text)
+        except _Cut as cut:
+            what = f"frame {len(frames)}" + (f" (timestep {step})" if step is not None else "")
+            message = (f"{path}: {what}, from line {start + 1}, is cut short: the file ends "
+                       f"before {cut.args[0]} (the run is still going or was killed, or "
+                       f"its atom count is too large)")
+            if not frames:
+                raise ValueError(message + "; no frame is complete") from None
+            warnings.warn(f"{message}; it is left out, the complete frames before it "
+                          f"({len(frames)}) are read", LammpsDumpWarning, stacklevel=3)
+            break
+        frames.append((step, bounds, box, columns, rows, k + 10))
         k += 9 + n
+    if not frames:
+        raise ValueError(f"{path}: no frame in it (an empty file)")
+    return frames
 
 
-def _box(bounds, box):
+def _numbers(path, rows, first_line, what, width):
+    """Rows of ``width`` words as a float array; a row of another length, a
+    word that is not a number, or NaN/inf is a ValueError naming its line."""
+    words = [r.split() for r in rows]
+    for r, w in enumerate(words):
+        if len(w) != width:
+            raise ValueError(f"{path}: line {first_line + r}: {what}: {len(w)} values, "
+                             f"expected {width}")
+    try:
+        table = np.array(words, dtype=float).reshape(len(rows), width)
+    except ValueError:
+        table = None
+    if table is None or not np.isfinite(table).all():
+        for r, row in enumerate(words):
+            for word in row:
+                try:
+                    value = float(word)
+                except ValueError:
+                    value = None
+                if value is None or not np.isfinite(value):
+                    raise ValueError(f"{path}: line {first_line + r}: {what}: {word!r} is not "
+                                     f"a finite number") from None
+    return table
+
+
+def _integers(path, values, name, first_line):
+    """A column that must hold integers (ids, types)."""
+    bad = np.flatnonzero(values != np.rint(values))
+    if len(bad):
+        raise ValueError(f"{path}: line {first_line + bad[0]}: the {name} "
+                         f"{float(values[bad[0]])!r} is not an integer")
+    return values.astype(np.int64)
+
+
+def _box(bounds, box, path, first_line):
     """Cell vectors and pbc from a dump's BOX BOUNDS (LAMMPS's bounding-box form
     for triclinic boxes); positions in dumps are absolute, the origin is not needed."""
     words = bounds.split()[3:]
-    rows = np.array([[float(x) for x in line.split()] for line in box])
+    tilted = "xy" in words
+    rows = _numbers(path, box, first_line, f"the box ({bounds.strip()})", 3 if tilted else 2)
     flags = [w for w in words if w not in ("xy", "xz", "yz")]
+    if len(flags) != 3:
+        raise ValueError(f"{path}: line {first_line - 1}: expected three boundary flags in "
+                         f"{bounds.strip()!r}")
     pbc = [f == "pp" for f in flags]
     if "xy" in words:
         xlo_b, xhi_b, xy = rows[0]
@@ -92,6 +207,14 @@ def read_lammps_spin_dump(path, index=":", *, data=None, symbols=None, energy=No
     symbols[k], or a mapping type -> symbol), else the data file ``data``
     (default: ``atoms.data`` next to the dump, if there) whose rotation is
     also undone. ``index``: an int, a slice or a string such as ":" or "-1".
+
+    A last frame cut short by the end of the file (a run still going, or
+    killed) is left out with a :class:`LammpsDumpWarning` naming it, and the
+    complete frames are read (a ValueError if none is complete). Anything else
+    malformed is a ValueError naming the file and the line: a frame with
+    fewer rows than its atom count before the next item, rows of the wrong
+    length, words that are not finite numbers, no ``id``, ``type`` or
+    position columns, an atom id twice, ids or types that are not integers.
     """
     from ase.calculators.singlepoint import SinglePointCalculator
     from ase.io.formats import string2index
@@ -114,29 +237,54 @@ def read_lammps_spin_dump(path, index=":", *, data=None, symbols=None, energy=No
     energies = {}
     energy_file = Path(energy) if energy is not None else path.parent / "energy.spin"
     if energy is not None or energy_file.is_file():
-        for line in energy_file.read_text().splitlines():
+        lines, cut = _read_text(energy_file, "an energy file (step, pe, ke)")
+        for n, line in enumerate(lines[:-1] if cut else lines):  # a cut last line: not yet
             if line.strip() and not line.startswith("#"):
-                step, pe, ke = line.split()[:3]
-                energies[int(step)] = (float(pe), float(ke))
+                words = line.split()
+                values = _numbers(energy_file, [" ".join(words[:3])], n + 1, "step pe ke", 3)
+                if values[0, 0] != int(values[0, 0]):
+                    raise ValueError(f"{energy_file}: line {n + 1}: expected a step (an "
+                                     f"integer), the potential and the kinetic energy, got "
+                                     f"{line[:80]!r}")
+                energies[int(values[0, 0])] = (float(values[0, 1]), float(values[0, 2]))
     if isinstance(index, str):
         index = string2index(index)
-    frames = list(_frames(path))
+    frames = _frames(path)
     chosen = frames[index] if isinstance(index, slice) else [frames[index]]
     out = []
-    for step, bounds, box, columns, rows in chosen:
-        table = np.array([r.split() for r in rows], dtype=float)
+    for step, bounds, box, columns, rows, first in chosen:
         col = {c: k for k, c in enumerate(columns)}
-        table = table[np.argsort(table[:, col["id"]])]
+        for need in ("id", "type"):
+            if need not in col:
+                raise ValueError(f"{path}: line {first - 1}: no '{need}' column in the frame "
+                                 f"of timestep {step} ({' '.join(columns)})")
+        if len(col) != len(columns):
+            raise ValueError(f"{path}: line {first - 1}: a column is named twice "
+                             f"({' '.join(columns)})")
+        table = _numbers(path, rows, first, f"the columns {' '.join(columns)}",
+                         len(columns))
+        ids = _integers(path, table[:, col["id"]], "atom id", first)
+        _integers(path, table[:, col["type"]], "atom type", first)
+        order = np.argsort(ids, kind="stable")
+        twice = np.flatnonzero(np.diff(ids[order]) == 0)
+        if len(twice):
+            a, b = sorted(order[twice[0]:twice[0] + 2])
+            raise ValueError(f"{path}: lines {first + a} and {first + b}: atom id "
+                             f"{ids[order[twice[0]]]} appears twice (timestep {step})")
+        table = table[order]
 
         def get(*names):
             if all(nm in col for nm in names):
                 return table[:, [col[nm] for nm in names]]
             return None
 
-        cell, pbc = _box(bounds, box)
+        cell, pbc = _box(bounds, box, path, first - 4)
         pos = get("xu", "yu", "zu")
         if pos is None:
             pos = get("x", "y", "z")
+        if pos is None:
+            raise ValueError(f"{path}: line {first - 1}: no positions (columns xu yu zu or "
+                             f"x y z) in the frame of timestep {step}")
         unit = get("spx", "spy", "spz")
         mag = get("sp")
         fm = get("fmx", "fmy", "fmz")

@@ -45,14 +45,53 @@ def _spglib(what, function, *args, **kwargs):
     return result
 
 
-def _check_crystal(atoms, what):
+#: Atoms further than this many cell lengths from the unit cell are refused:
+#: spglib reduces fractional coordinates to [0, 1), and beyond this their
+#: rounding error approaches the tolerances (wrap the positions first).
+MAX_CELLS_AWAY = 1e6
+
+#: The most (pair, symmetry operation) rows :func:`neighbor_shells` builds: the
+#: pairs within ``rmax`` (estimated from the density before any is listed)
+#: times the space group's operations plus one. Each row takes 40 bytes, and
+#: sorting them several times that.
+MAX_PAIR_ROWS = 5_000_000
+
+
+def _check_crystal(atoms, what, symprec):
+    """Refuse what spglib cannot take: no atoms, a non-periodic or flat cell,
+    NaN/inf (spglib's C code crashes the interpreter on them) and positions so
+    far from the cell that their fractional parts are rounding noise on the
+    scale of ``symprec``. Returns (cell, fractional positions)."""
     if len(atoms) == 0:
         raise ValueError(f"{what}: the Atoms are empty")
     if not atoms.pbc.all():
         raise ValueError(f"{what} needs a crystal: periodic in all three directions "
                          f"(pbc = {atoms.pbc.tolist()})")
-    if abs(np.linalg.det(atoms.cell.array)) < 1e-12:
-        raise ValueError(f"{what}: the cell has no volume (pbc=True needs a cell)")
+    cell = real_array(atoms.cell.array, f"{what}: the cell", shape=(3, 3))
+    if not np.isfinite(cell).all():
+        raise ValueError(f"{what}: the cell has non-finite entries: {cell.tolist()}")
+    positions = real_array(atoms.positions, f"{what}: the positions", shape=(len(atoms), 3))
+    bad = np.flatnonzero(~np.isfinite(positions).all(axis=1))
+    if len(bad):
+        raise ValueError(f"{what}: the position of atom {bad[0]} is not finite: "
+                         f"{positions[bad[0]].tolist()}")
+    volume = abs(np.linalg.det(cell))
+    if not (volume >= 1e-12 and np.isfinite(volume)):
+        raise ValueError(f"{what}: the cell has no volume (pbc=True needs a cell), or its "
+                         f"volume overflows: {cell.tolist()}")
+    frac = np.linalg.solve(cell.T, positions.T).T
+    far = np.abs(frac).max(axis=1)
+    k = int(np.argmax(far))
+    # the rounding of the fractional coordinate, in Å, and of the position itself
+    rounding = max(float(np.spacing(far[k])) * float(np.linalg.norm(cell, axis=1).max()),
+                   float(np.spacing(np.abs(positions).max())))
+    if not far[k] <= MAX_CELLS_AWAY or not rounding <= 0.01 * symprec:
+        raise ValueError(
+            f"{what}: atom {k} lies {far[k]:.3g} cell lengths from the unit cell (at most "
+            f"{MAX_CELLS_AWAY:g}, and its coordinates' rounding, {rounding:.2g} Å, must stay "
+            f"below symprec/100 = {0.01 * symprec:.2g} Å): wrap the positions into the cell "
+            f"(atoms.wrap()) first")
+    return cell, frac
 
 
 def _kinds(atoms):
@@ -230,6 +269,20 @@ def _distinct(d, tol=1e-4):
     return d[keep]
 
 
+def _check_size(natoms, volume, rmax, radius, operations):
+    """Refuse an ``rmax`` whose pairs within ``radius`` (estimated from the
+    density, natoms² 4πr³/3V, before any is listed) times ``operations``
+    exceed :data:`MAX_PAIR_ROWS`."""
+    with np.errstate(over="ignore"):
+        pairs = natoms * (natoms / volume) * (4.0 / 3.0) * np.pi * np.float64(radius) ** 3
+    if not pairs * operations <= MAX_PAIR_ROWS:
+        per = f" × {operations} symmetry operations" if operations > 1 else ""
+        raise ValueError(
+            f"neighbor_shells: rmax = {rmax:g} Å takes in about {pairs:.3g} pairs{per} "
+            f"({natoms} atoms in {volume:.4g} Å³), more than the {MAX_PAIR_ROWS:.3g} rows "
+            f"neighbor_shells builds at most: choose a smaller rmax")
+
+
 def neighbor_shells(atoms, rmax, symprec=1e-5, sites=None):
     """Neighbour shells of a crystal by symmetry, for assigning exchange per shell.
 
@@ -247,20 +300,27 @@ def neighbor_shells(atoms, rmax, symprec=1e-5, sites=None):
     :class:`Shell` each, numbered by distance; classes at the same distance
     that no operation relates are listed apart (``orbit`` a, b, ...), e.g.
     the in-plane and out-of-plane nearest neighbours of hcp.
+
+    Refused with a ValueError: NaN/inf in the cell or positions; an atom more
+    than :data:`MAX_CELLS_AWAY` cell lengths from the unit cell (or so far that
+    the rounding of its coordinates reaches symprec/100: wrap the positions
+    first); an ``rmax`` whose pairs (estimated from the density) times the
+    space group's operations exceed :data:`MAX_PAIR_ROWS`.
     """
-    _check_crystal(atoms, "neighbor_shells")
     rmax = positive_scalar(rmax, "neighbor_shells rmax")
     symprec = positive_scalar(symprec, "neighbor_shells symprec")
-    cell = atoms.cell.array
-    frac = atoms.get_scaled_positions(wrap=False)
+    cell, frac = _check_crystal(atoms, "neighbor_shells", symprec)
     kinds = _kinds(atoms)
-    data = _spglib("neighbor_shells", spglib.get_symmetry_dataset, (cell, frac, kinds),
-                   symprec=symprec)
     magnetic = _magnetic_sites(atoms, sites)
-    is_mag = np.zeros(len(atoms), bool)
-    is_mag[magnetic] = True
     # a margin beyond rmax, so that a shell at rmax is found whole
     margin = max(1e-3, 100.0 * symprec)
+    _check_size(len(atoms), abs(np.linalg.det(cell)), rmax, rmax + margin, 1)
+    data = _spglib("neighbor_shells", spglib.get_symmetry_dataset, (cell, frac, kinds),
+                   symprec=symprec)
+    _check_size(len(atoms), abs(np.linalg.det(cell)), rmax, rmax + margin,
+                len(data.rotations) + 1)
+    is_mag = np.zeros(len(atoms), bool)
+    is_mag[magnetic] = True
     i, j, S, d = primitive_neighbor_list("ijSd", atoms.pbc, cell, atoms.positions,
                                          rmax + margin, self_interaction=False)
     keep = is_mag[i] & is_mag[j]
@@ -354,9 +414,10 @@ def magnetic_symmetry(atoms, symprec=1e-5, mag_symprec=None):
     collinear values. Found with ``spglib.get_magnetic_symmetry_dataset``;
     ``symprec`` (Å) for positions, ``mag_symprec`` (μB) for moments (default:
     ``symprec``). Atoms with different tags count as different kinds.
+    Cells and positions are checked as in :func:`neighbor_shells`.
     """
-    _check_crystal(atoms, "magnetic_symmetry")
     symprec = positive_scalar(symprec, "magnetic_symmetry symprec")
+    _check_crystal(atoms, "magnetic_symmetry", symprec)
     mag_symprec = -1.0 if mag_symprec is None else positive_scalar(
         mag_symprec, "magnetic_symmetry mag_symprec")
     m = np.array(atoms.get_initial_magnetic_moments(), dtype=float)

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from ase import Atoms
+from ase.data import atomic_numbers
 
 from ..terms.tabulated import ShellExchange
 
@@ -16,6 +17,12 @@ __all__ = ["read_tb2j", "TB2JExchange"]
 
 #: TB2J's J_iso are in meV over ordered pairs; ase_spin's J in eV over unordered ones.
 MEV = 1e-3
+
+#: Pairs whose lattice image R has a component beyond this (cells) are refused.
+MAX_TB2J_CELLS = 1000
+
+#: The start of a pair line: an atom label (``Fe1``, or the older ``0(Fe1``).
+_PAIR_START = re.compile(r"^\s*(?:\d+\(\s*[A-Za-z]+\d+|[A-Za-z]+\d+(?=\s|$))")
 
 _PAIR = re.compile(
     r"^\s*(?:\d+\(\s*)?([A-Za-z]+\d+)\s*\)?\s+(?:\d+\(\s*)?([A-Za-z]+\d+)\s*\)?\s+"
@@ -106,8 +113,16 @@ def read_tb2j(path):
 
     The two directions of a pair (i, j, R) and (j, i, −R) become one row (their
     mean, with a warning when they differ by more than TB2J's printed
-    precision); a pair listed in one direction only is kept. Each pair's
-    vector is checked against the positions (the file's atoms section).
+    precision); a pair listed in one direction only is kept, with a warning
+    counting such pairs (TB2J lists both: a file cut short loses them). Each
+    pair's vector and distance are checked against the positions (the file's
+    atoms section).
+
+    Refused with a ValueError naming the file and line: binary content, a
+    line in the Exchange section that starts like a pair line but does not
+    read as one (or ends the file without a newline), labels that name no
+    element, NaN/inf numbers, lattice images more than
+    :data:`MAX_TB2J_CELLS` cells away.
     """
     path = os.fspath(path)
     if os.path.isdir(path):
@@ -117,8 +132,18 @@ def read_tb2j(path):
                 break
         else:
             raise FileNotFoundError(f"no exchange.out in {path}")
-    with open(path) as f:
-        lines = f.read().splitlines()
+    with open(path, "rb") as f:
+        raw = f.read()
+    if b"\0" in raw:
+        raise ValueError(f"{path}: not a text file (contains NUL bytes): not a TB2J "
+                         "exchange.out file")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise ValueError(f"{path}: not a text file (byte {err.start} is not UTF-8): not a "
+                         "TB2J exchange.out file") from None
+    lines = text.splitlines()
+    cut = bool(text) and not text.endswith(("\n", "\r"))  # TB2J ends every line
 
     k = _find(lines, "Cell (Angstrom)", path)
     try:
@@ -127,6 +152,8 @@ def read_tb2j(path):
         raise ValueError(f"{path}: line {k + 2}: the cell must be three rows of three numbers")
     if cell.shape != (3, 3):
         raise ValueError(f"{path}: line {k + 2}: the cell must be three rows of three numbers")
+    if not np.isfinite(cell).all():
+        raise ValueError(f"{path}: line {k + 2}: the cell must be finite, got {cell.tolist()}")
 
     k = _find(lines, "Atoms:", path)
     labels, positions, moments = [], [], []
@@ -143,6 +170,13 @@ def read_tb2j(path):
         if len(values) not in (5, 7):
             raise ValueError(f"{path}: line {n + 1}: expected x y z charge and a moment "
                              f"(1 or 3 numbers): {lines[n]!r}")
+        if not np.isfinite(values).all():
+            raise ValueError(f"{path}: line {n + 1}: the position, charge and moment must be "
+                             f"finite: {lines[n]!r}")
+        symbol = re.match(r"[A-Z][a-z]?", words[0]).group()
+        if symbol not in atomic_numbers:
+            raise ValueError(f"{path}: line {n + 1}: the label {words[0]!r} names no chemical "
+                             f"element ({symbol!r})")
         labels.append(words[0])
         positions.append(values[:3])
         moments.append(values[4] if len(values) == 5 else values[4:7])
@@ -160,16 +194,28 @@ def read_tb2j(path):
             break
         m = _PAIR.match(lines[n])
         if not m:
+            if _PAIR_START.match(lines[n]):
+                raise ValueError(f"{path}: line {n + 1}: a pair line that does not read as "
+                                 f"'i j (R1, R2, R3) J_iso (x, y, z) distance': {lines[n]!r}")
             continue
+        if cut and n == len(lines) - 1:
+            raise ValueError(f"{path}: line {n + 1}: the file ends within this pair line (no "
+                             f"newline after it): it may be cut short: {lines[n]!r}")
         a, b = m.group(1), m.group(2)
         for lab in (a, b):
             if lab not in index:
                 raise ValueError(f"{path}: line {n + 1}: atom {lab} is not in the Atoms section")
         R = [int(m.group(g)) for g in (3, 4, 5)]
+        if max(abs(x) for x in R) > MAX_TB2J_CELLS:
+            raise ValueError(f"{path}: line {n + 1}: the lattice image R = {tuple(R)} is more "
+                             f"than {MAX_TB2J_CELLS} cells away")
         try:
             J, vx, vy, vz, dist = (float(m.group(g)) for g in (6, 7, 8, 9, 10))
         except ValueError:
             raise ValueError(f"{path}: line {n + 1}: unreadable numbers in {lines[n]!r}")
+        if not np.isfinite([J, vx, vy, vz, dist]).all():
+            raise ValueError(f"{path}: line {n + 1}: J, the vector and the distance must be "
+                             f"finite: {lines[n]!r}")
         rows.append((index[a], index[b], *R, J, vx, vy, vz, dist, n + 1))
     if not rows:
         raise ValueError(f"{path}: no exchange pairs in the Exchange section")
@@ -185,6 +231,11 @@ def read_tb2j(path):
         q = int(np.argmax(bad))
         raise ValueError(f"{path}: line {line_no[q]}: the pair's vector {vec[q].tolist()} is not "
                          f"r_j + R·cell − r_i = {np.round(d[q], 4).tolist()} from the atoms section")
+    bad = np.abs(np.linalg.norm(d, axis=1) - data[:, 9]) > 2e-3
+    if bad.any():
+        q = int(np.argmax(bad))
+        raise ValueError(f"{path}: line {line_no[q]}: the pair's distance {data[q, 9]} is not "
+                         f"|r_j + R·cell − r_i| = {np.linalg.norm(d[q]):.4f} Å")
     keep = ~((i == j) & (R == 0).all(axis=1))  # TB2J may list an on-site entry
 
     # one row per unordered pair: (a, b, S) with a < b, or a == b and S > 0
@@ -205,6 +256,11 @@ def read_tb2j(path):
         q = int(np.argmax(hi - lo))
         warnings.warn(f"{path}: the two directions of the pair {uniq[q].tolist()} have J "
                       f"{lo[q]} and {hi[q]} meV; using their mean", stacklevel=2)
+    single = int((counts == 1).sum())
+    if single:
+        warnings.warn(f"{path}: {single} of the {len(uniq)} pairs are listed in one direction "
+                      f"only (TB2J lists both (i, j, R) and (j, i, -R)): the file may be cut "
+                      f"short or edited", stacklevel=2)
     Jbar = total / counts
     ia, ib, Su = uniq[:, 0], uniq[:, 1], uniq[:, 2:]
     dist = np.linalg.norm(pos[ib] + Su @ cell - pos[ia], axis=1)

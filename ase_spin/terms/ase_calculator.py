@@ -3,14 +3,36 @@
 from __future__ import annotations
 
 import pickle
+import threading
+import weakref
 
 import numpy as np
 from ase import Atoms
 from ase.calculators.calculator import BaseCalculator, PropertyNotImplementedError
 
+from ..validate import real_array
 from .base import Term
 
 __all__ = ["CalculatorTerm", "is_ase_calculator"]
+
+
+# One lock per wrapped calculator: an ASE calculator keeps its results (and the
+# Atoms they are of) in itself, so two threads using one calculator would read
+# each other's results. Calculators that cannot be weakly referenced share one.
+_LOCKS = weakref.WeakKeyDictionary()
+_LOCKS_GUARD = threading.Lock()
+_SHARED_LOCK = threading.RLock()
+
+
+def _lock_of(calculator):
+    with _LOCKS_GUARD:
+        try:
+            lock = _LOCKS.get(calculator)
+            if lock is None:
+                lock = _LOCKS[calculator] = threading.RLock()
+            return lock
+        except TypeError:  # not hashable, or not weakly referenceable
+            return _SHARED_LOCK
 
 
 def is_ase_calculator(obj):
@@ -44,6 +66,16 @@ class CalculatorTerm(Term):
     The calculator sees chemical symbols, positions, cell and periodicity
     only: it must not depend on the spins (use it for the spin-independent
     part; spin terms are ase_spin terms).
+
+    Checked on every call: the calculator is handed a copy of the term's
+    Atoms, and one that changes its cell, periodicity or atomic numbers is
+    refused (its results are not of this system); the energy must be one
+    real number, forces an (N, 3) and per-atom energies an (N,) array of
+    real numbers, the stress 6 or 9 of them (a TypeError or ValueError
+    naming the calculator otherwise: no broadcasting of a wrong shape). Calls
+    into one calculator are serialised by a lock, so that threads sharing it
+    (two Atoms with one calculator, in two threads) do not read each other's
+    results.
     """
 
     name = "calculator"
@@ -105,8 +137,18 @@ class CalculatorTerm(Term):
             props.append("energies")
         if want.virial and periodic:
             props.append("stress")
-        atoms.arrays["positions"][:] = positions  # the calculator never sees our arrays
-        results = self._results(atoms, props)
+        # a copy: the calculator never sees our arrays, nor can it change the
+        # Atoms the next call is made with
+        work = atoms.copy()
+        work.arrays["positions"][:] = positions
+        with _lock_of(self.calculator):
+            results = self._checked(self._results(work, props), props, len(atoms))
+        if not (np.array_equal(work.cell.array, atoms.cell.array)
+                and np.array_equal(work.pbc, atoms.pbc)
+                and np.array_equal(work.numbers, atoms.numbers)):
+            raise ValueError(f"{self.name} ({type(self.calculator).__name__}) changed the cell, "
+                             "periodicity or atomic numbers of the Atoms it was given: its "
+                             "results are not those of the system")
         if want.forces:
             forces += results["forces"]
         if want.energies:
@@ -118,11 +160,34 @@ class CalculatorTerm(Term):
             w = 0.5 * (w + w.T)
             virial = w[[0, 1, 2, 1, 0, 0], [0, 1, 2, 2, 2, 1]]
         elif want.virial:
-            virial = np.asarray(results["stress"], dtype=float).reshape(-1)
+            virial = results["stress"].reshape(-1)
             if virial.shape == (9,):
                 virial = virial.reshape(3, 3)[[0, 1, 2, 1, 0, 0], [0, 1, 2, 2, 2, 1]]
             virial = virial * abs(np.linalg.det(atoms.cell.array))
-        return float(results["energy"]), virial
+        return results["energy"], virial
+
+    def _checked(self, results, props, natoms):
+        """Copies of the calculator's ``props`` as float64, of the shapes the
+        term adds up; TypeError/ValueError naming the calculator otherwise."""
+        name = f"{self.name} ({type(self.calculator).__name__})"
+        out = {}
+        for p in props:
+            what = f"the {p} {name} gave"
+            value = real_array(results[p], what)
+            if p == "energy":
+                if value.size != 1:
+                    raise ValueError(f"{what} must be one number, got shape {value.shape}")
+                out[p] = float(value.reshape(-1)[0])
+                continue
+            shape = {"forces": (natoms, 3), "energies": (natoms,)}.get(p)
+            if shape is not None and value.shape != shape:
+                raise ValueError(f"{what} must have shape {shape} (one row per atom), got "
+                                 f"{value.shape}")
+            if p == "stress" and value.shape not in ((6,), (9,), (3, 3)):
+                raise ValueError(f"{what} must have 6 (Voigt) or 3x3 components, got shape "
+                                 f"{value.shape}")
+            out[p] = value.copy()
+        return out
 
     def _results(self, atoms, props):
         """The calculator's results for ``props`` at ``atoms``: ASE's

@@ -43,6 +43,13 @@ _FORMATS = {"funcfl": "funcfl (.eam, LAMMPS pair_style eam)",
             "fs": "Finnis-Sinclair (.eam.fs, LAMMPS pair_style eam/fs)"}
 
 
+#: The largest table index a grid may need (LAMMPS's index is an ``int``):
+#: r/dr + 1 for distances within a file's cutoff, and for funcfl files
+#: re-gridded together r/dr + 1 and ρ/dρ + 1 over the common ranges. A smaller
+#: dr would make the index overflow (energies from round-off to 1e205 to NaN).
+MAX_TABLE_INDEX = 2 ** 31 - 1
+
+
 class EAMFileError(ValueError):
     """A potential file that cannot be read: the message names the file and line."""
 
@@ -156,6 +163,9 @@ class _Reader:
             raise EAMFileError(f"{self.path}: not a text file (contains NUL bytes)")
         self.lines = text.splitlines()
         self.next = 0  # index of the next line to read
+        # words_from[k]: the words (comments dropped) on lines k, k + 1, ...
+        counts = [len(line.split("#", 1)[0].split()) for line in self.lines]
+        self.words_from = np.concatenate([np.cumsum(counts[::-1])[::-1], [0]]).astype(int)
 
     def fail(self, line_index, message):
         where = f"line {line_index + 1}" if line_index < len(self.lines) else "end of file"
@@ -198,15 +208,17 @@ class _Reader:
         return value
 
     def block(self, n, what):
-        """``n`` numbers from the following lines, as a 1-based array of n + 1."""
+        """``n`` numbers from the following lines, as a 1-based array of n + 1
+        (refused before anything is allocated when the file holds fewer)."""
+        start = self.next
+        if n > self.words_from[start]:
+            raise self.fail(
+                len(self.lines), f"truncated: {what} needs {n} values from line {start + 1} "
+                                 f"on, the file holds only {self.words_from[start]} words "
+                                 f"from there (or the header's count is too large)")
         out = np.zeros(n + 1)
         filled = 0
-        start = self.next
         while filled < n:
-            if self.next >= len(self.lines):
-                raise self.fail(
-                    self.next, f"truncated: {what} needs {n} values from line {start + 1} "
-                               f"on, the file ends after {filled}")
             k, words = self._tokens(what)
             if filled + len(words) > n:
                 raise self.fail(
@@ -225,6 +237,33 @@ class _Reader:
             filled += len(words)
         return out
 
+    def check_end(self, last):
+        """Refuse values after the last block: the header's counts are smaller
+        than the file's blocks (so every block after the first short one was
+        read shifted), or values trail the data."""
+        for k in range(self.next, len(self.lines)):
+            if self.words_from[k] > self.words_from[k + 1]:
+                extra = self.words_from[k]
+                raise self.fail(
+                    k, f"{extra} value(s) after the last block ({last}): the header's "
+                       f"counts are smaller than the file's blocks, or values trail the data")
+
+    def element_line(self, what, previous, counts):
+        """The line 'Z mass a lattice' of an element: (line index, Z, mass).
+        A line of numbers in its place means that the blocks of the element
+        before it (``previous``) hold more values than the header's ``counts``."""
+        k, words = self.values(2, what)
+        try:
+            z = int(words[0])
+        except ValueError:
+            if previous is None:
+                raise self.fail(k, f"{what}: {words[0]!r} is not an integer") from None
+            raise self.fail(k, f"{what}: expected here, found {' '.join(words[:4])!r}...: "
+                               f"the blocks of {previous} hold more values than the "
+                               f"header's counts ({counts}) say, or the file is malformed"
+                            ) from None
+        return k, z, self.number(k, words[1], float, f"the mass in {what}")
+
     def grid(self, what):
         k, words = self.values(5, what)
         nrho = self.number(k, words[0], int, "Nrho")
@@ -237,6 +276,13 @@ class _Reader:
                                f"(LAMMPS's splines need five points)")
         if not (drho > 0.0 and dr > 0.0 and cut > 0.0):
             raise self.fail(k, f"drho = {drho}, dr = {dr}, cutoff = {cut}: each must be > 0")
+        for name, d in (("dr", dr), ("drho", drho)):
+            if not np.isfinite(1.0 / d):
+                raise self.fail(k, f"{name} = {d!r} is too small: 1/{name} overflows")
+        if not cut / dr + 1.0 <= MAX_TABLE_INDEX:
+            raise self.fail(k, f"dr = {dr!r} is too small for the cutoff {cut!r}: the table "
+                               f"index r/dr + 1 would reach {cut / dr + 1.0:.3g}, beyond "
+                               f"{MAX_TABLE_INDEX}")
         return nrho, drho, nr, dr, cut
 
     def check_units(self):
@@ -260,6 +306,7 @@ def _read_funcfl(path):
     frho = rd.block(nrho, "F(rho)")
     zr = rd.block(nr, "Z(r)")
     rhor = rd.block(nr, "rho(r)")
+    rd.check_end("rho(r)")
     from ase.data import chemical_symbols
 
     element = chemical_symbols[z] if 0 < z < len(chemical_symbols) else Path(path).name
@@ -280,23 +327,26 @@ def _read_setfl(path, fmt):
     if len(set(elements)) != nel:
         raise rd.fail(k, f"an element is named twice: {' '.join(elements)}")
     nrho, drho, nr, dr, cut = rd.grid("the line 'Nrho drho Nr dr cutoff'")
-    masses = []
-    frho = np.zeros((nel, nrho + 1))
-    rhor = np.zeros((nel, nr + 1) if fmt == "setfl" else (nel, nel, nr + 1))
+    counts = f"Nrho = {nrho}, Nr = {nr}"
+    # blocks are read before the arrays are made: counts larger than the
+    # values present are refused by the reader before anything is allocated
+    masses, frho, rhor = [], [], []
     for e, el in enumerate(elements):
-        k, words = rd.values(2, f"the line 'Z mass a lattice' of {el}")
-        rd.number(k, words[0], int, f"the atomic number of {el}")
-        masses.append(rd.number(k, words[1], float, f"the mass of {el}"))
-        frho[e] = rd.block(nrho, f"F(rho) of {el}")
+        _, _, mass = rd.element_line(f"the line 'Z mass a lattice' of {el}",
+                                     elements[e - 1] if e else None, counts)
+        masses.append(mass)
+        frho.append(rd.block(nrho, f"F(rho) of {el}"))
         if fmt == "setfl":
-            rhor[e] = rd.block(nr, f"rho(r) of {el}")
+            rhor.append(rd.block(nr, f"rho(r) of {el}"))
         else:
-            for f, other in enumerate(elements):
-                rhor[e, f] = rd.block(nr, f"rho(r) of {el} ({other} block)")
+            rhor.append([rd.block(nr, f"rho(r) of {el} ({other} block)")
+                         for other in elements])
     z2r = np.zeros((nel, nel, nr + 1))
     for e in range(nel):
         for f in range(e + 1):
-            z2r[e, f] = rd.block(nr, f"r*phi(r) of {elements[e]}-{elements[f]}")
+            z2r[e, f] = rd.block(nr, last := f"r*phi(r) of {elements[e]}-{elements[f]}")
+    rd.check_end(last)
+    frho, rhor = np.array(frho), np.array(rhor)
     return EAMData(fmt, (str(path),), elements, tuple(masses), nrho, drho, nr, dr, cut,
                    frho, rhor, z2r=z2r)
 
@@ -413,6 +463,13 @@ def lammps_arrays(data, active):
         drho = max(drho, data.drho[e])
         rmax = max(rmax, (data.nr[e] - 1) * data.dr[e])
         rhomax = max(rhomax, (data.nrho[e] - 1) * data.drho[e])
+    for e in active:  # each file's table index over the common ranges
+        for name, top, d in (("r", rmax, data.dr[e]), ("rho", rhomax, data.drho[e])):
+            if not top / d + 1.0 <= MAX_TABLE_INDEX:
+                raise EAMFileError(
+                    f"{data.paths[e]}: its grid step in {name} ({d!r}) is too small for the "
+                    f"range {top:g} of the funcfl files used with it: the table index would "
+                    f"reach {top / d + 1.0:.3g}, beyond {MAX_TABLE_INDEX}")
     nr = int(rmax / dr + 0.5)
     nrho = int(rhomax / drho + 0.5)
     frho = np.array([_regrid(data.frho[e], data.nrho[e], data.drho[e], nrho, drho)
