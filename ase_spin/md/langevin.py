@@ -14,6 +14,7 @@ from ase import units
 
 from .._jit import threads
 from ..validate import REQUIRED, flag, integer, real_scalar
+from . import bath_parameters as parameters
 from . import kernels
 from .base import fastest_precession
 from .baths import BathHalfSteps
@@ -41,82 +42,6 @@ _MEAN_SLOPE = np.array([[1.0, 0.0, 0.0, 0.0],
 _SETTLED = 1e-12
 #: and of q̃ (Å), see Langevin.step_policy
 _SETTLED_Q = 1e-10
-
-
-def _rng(rng):
-    if rng is None or isinstance(rng, (int, np.integer)) and not isinstance(rng, bool):
-        if rng is not None and rng < 0:
-            raise ValueError(f"rng seed must be a non-negative integer, got {rng}")
-        return np.random.default_rng(rng)
-    if isinstance(rng, np.random.Generator):
-        return rng
-    raise TypeError("rng must be a numpy Generator (np.random.default_rng(seed)), an "
-                    f"integer seed or None, got {type(rng).__name__}")
-
-
-#: The largest bath temperature (K) and spin damping accepted: far beyond any
-#: magnetic or atomic structure (k_B·10⁸ K ≈ 8.6 keV), and below where the
-#: noise amplitudes and 1 + λ² overflow.
-MAX_BATH_TEMPERATURE_K = 1e8
-MAX_SPIN_DAMPING = 1e6
-
-
-def _temperature(value, what):
-    t = real_scalar(value, what)
-    if t < 0.0:
-        raise ValueError(f"{what} must be >= 0 K, got {t}")
-    if t > MAX_BATH_TEMPERATURE_K:
-        raise ValueError(f"{what} = {t:g} K is above {MAX_BATH_TEMPERATURE_K:g} K, where no "
-                         "magnetic or atomic structure survives: a value in the wrong unit?")
-    return t
-
-
-def _kT(value, what):
-    """k_B T (eV) set as an attribute: checked as a temperature in K would be."""
-    x = _non_negative(value, what, "eV")
-    _temperature(x / units.kB, what + " / k_B")
-    return x
-
-
-def _damping(value):
-    x = _non_negative(value, "spin_damping", "dimensionless")
-    if x > MAX_SPIN_DAMPING:
-        raise ValueError(f"spin_damping = {x:g} is above {MAX_SPIN_DAMPING:g} (overdamped "
-                         "long before: the spins then barely move); typically 0.01 to 0.1")
-    return x
-
-
-#: What each required parameter of Langevin is, with typical values: the
-#: message when it is missing (see :func:`_require`).
-_TYPICAL = {
-    "temperature_K": "the bath temperature in K",
-    "spin_damping": "λ, the spin bath's dimensionless Gilbert damping: typically 0.01 to "
-                    "0.1, 0 for no spin bath",
-    "friction": "γ, the lattice bath's friction in 1/(ASE time), as ASE's Langevin: "
-                "typically 0.001 / units.fs to 0.01 / units.fs, 0 for no lattice bath",
-}
-
-
-def _require(**given):
-    """TypeError naming the required parameters of Langevin that were not
-    given, what each is and its typical values. They have no defaults, as in
-    ASE's Langevin (friction) and LAMMPS's fix langevin and langevin/spin:
-    the coupling to a bath is part of the physics a run shows (how fast it
-    equilibrates, how much the bath disturbs correlations and switching
-    rates), a number for the user to choose."""
-    missing = [k for k, v in given.items() if v is REQUIRED]
-    if missing:
-        raise TypeError(
-            "Langevin needs " + "; ".join(f"{k} ({_TYPICAL[k]})" for k in missing)
-            + ". For example: Langevin(atoms, 0.5 * units.fs, temperature_K=300, "
-            "spin_damping=0.1, friction=0.01 / units.fs)")
-
-
-def _non_negative(value, what, unit):
-    x = real_scalar(value, what)
-    if x < 0.0:
-        raise ValueError(f"{what} must be >= 0 ({unit}), got {x}")
-    return x
 
 
 class Langevin(BathHalfSteps, CollectivePRK):
@@ -240,14 +165,13 @@ class Langevin(BathHalfSteps, CollectivePRK):
         # unknown keywords first: temperature=300 (ASE's old name) is a slip to
         # name as such, not a missing temperature_K
         self._refuse_unknown(kwargs)
-        _require(temperature_K=temperature_K, spin_damping=spin_damping, friction=friction)
-        self.temp = _temperature(temperature_K, "temperature_K") * units.kB
-        self.spin_temp = (self.temp if spin_temperature_K is None else
-                          _temperature(spin_temperature_K, "spin_temperature_K") * units.kB)
+        parameters.require(temperature_K=temperature_K, spin_damping=spin_damping,
+                           friction=friction)
+        self.set_temperature(temperature_K, spin_temperature_K)
         self.spin_damping = spin_damping
         self.fr = friction
         self.fix_com = flag(fixcm, "fixcm")
-        self.rng = _rng(rng)
+        self.rng = parameters.generator(rng)
         if not real_scalar(timestep, "timestep") > 0.0:
             raise ValueError(f"Langevin needs a positive timestep, got {timestep}")
         if kwargs.get("tol") is None and self._noisy():
@@ -273,7 +197,7 @@ class Langevin(BathHalfSteps, CollectivePRK):
 
     @spin_damping.setter
     def spin_damping(self, value):
-        self._spin_damping = _damping(value)
+        self._spin_damping = parameters.spin_damping(value)
 
     @property
     def fr(self):
@@ -282,7 +206,7 @@ class Langevin(BathHalfSteps, CollectivePRK):
 
     @fr.setter
     def fr(self, value):
-        self._friction = _non_negative(value, "friction", "1/ASE time")
+        self._friction = parameters.non_negative(value, "friction", "1/ASE time")
 
     def set_friction(self, friction):
         """New friction γ (1/(ASE time)) for the steps to come, as
@@ -296,7 +220,7 @@ class Langevin(BathHalfSteps, CollectivePRK):
 
     @temp.setter
     def temp(self, value):
-        self._temp = _kT(value, "temp (k_B T of the lattice bath)")
+        self._temp = parameters.kT(value, "temp (k_B T of the lattice bath)")
 
     @property
     def spin_temp(self):
@@ -305,14 +229,14 @@ class Langevin(BathHalfSteps, CollectivePRK):
 
     @spin_temp.setter
     def spin_temp(self, value):
-        self._spin_temp = _kT(value, "spin_temp (k_B T of the spin bath)")
+        self._spin_temp = parameters.kT(value, "spin_temp (k_B T of the spin bath)")
 
     def set_temperature(self, temperature_K, spin_temperature_K=None):
         """New bath temperatures (K) for the steps to come (spin bath: default
         the lattice's), as ``ase.md.langevin.Langevin.set_temperature``."""
-        temp = _temperature(temperature_K, "temperature_K") * units.kB
-        spin = (temp if spin_temperature_K is None else
-                _temperature(spin_temperature_K, "spin_temperature_K") * units.kB)
+        temp = parameters.temperature_K(temperature_K, "temperature_K") * units.kB
+        spin = (temp if spin_temperature_K is None else units.kB
+                * parameters.temperature_K(spin_temperature_K, "spin_temperature_K"))
         self.temp, self.spin_temp = temp, spin
 
     def todict(self):
@@ -624,7 +548,7 @@ def relax_spins(atoms, *, fmax=1e-6, damping=1.0, timestep=None, steps=100_000,
     momenta are not touched. Raises RuntimeError (the Atoms keep their spins
     from before the call) if ``fmax`` is not reached in ``steps`` steps.
     """
-    fmax = _non_negative(fmax, "fmax", "eV")
+    fmax = parameters.non_negative(fmax, "fmax", "eV")
     damping = real_scalar(damping, "damping")
     if not damping > 0.0:
         raise ValueError(f"damping must be > 0 to relax spins, got {damping}")
