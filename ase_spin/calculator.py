@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import warnings
 
 import numpy as np
 from ase.calculators.calculator import Calculator, PropertyNotImplementedError, all_changes, equal
@@ -12,6 +11,7 @@ from .hamiltonian import AtomsTooCloseError, Hamiltonian
 from .serialize import decode_term, encode_term
 from .spins import get_moments, split_moments
 from .terms.base import Want
+from .validate import warn_user
 
 __all__ = ["SpinLatticeCalculator", "NoMomentsWarning"]
 
@@ -25,11 +25,11 @@ def _warn_no_moments(hamiltonian, mu):
     terms in the Hamiltonian that silently gives a non-magnetic system."""
     spin_terms = hamiltonian.spin_term_names
     if spin_terms and len(mu) and not (mu > 0.0).any():
-        warnings.warn(
+        warn_user(
             f"the Hamiltonian has spin terms ({', '.join(spin_terms)}) but the atoms "
             "carry no magnetic moments, so these terms contribute nothing and no spin "
             "moves: set spins with ase_spin.set_spins(atoms, directions, magnitudes)",
-            NoMomentsWarning, stacklevel=4)
+            NoMomentsWarning)
 
 
 def _system_changes(old, new, tol, ignored):

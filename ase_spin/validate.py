@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import difflib
 import numbers
+import os
+import sys
 import warnings
 
 import numpy as np
@@ -172,7 +174,22 @@ _UNIT_SLIPS = {
 }
 
 
-def warn_implausible(value, limit, what, unit, typical, slip, stacklevel=3):
+#: The package's folder: frames in it are not the user's (see :func:`warn_user`).
+PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__)) + os.sep
+
+
+def warn_user(warning, category=None):
+    """``warnings.warn``, attributed to the first caller outside ase_spin: the
+    user's line (``dyn.run(...)``, ``Exchange(...)``), however deep in the
+    package the warning is raised, so that the message points at what to
+    change and Python's once-per-location filter counts the user's lines."""
+    frame, level = sys._getframe(1), 2
+    while frame is not None and frame.f_code.co_filename.startswith(PACKAGE_DIR):
+        frame, level = frame.f_back, level + 1
+    warnings.warn(warning, category, stacklevel=level)
+
+
+def warn_implausible(value, limit, what, unit, typical, slip):
     """Warn (:class:`ImplausibleParameterWarning`) if |value| > ``limit``:
     ``what = value unit: above limit unit, typical; slip``. ``value`` may be a
     number or a mapping of them (per species or pair: the largest is named).
@@ -182,9 +199,9 @@ def warn_implausible(value, limit, what, unit, typical, slip, stacklevel=3):
     if not worst > limit:
         return
     hint = _UNIT_SLIPS.get(slip, slip)
-    warnings.warn(ImplausibleParameterWarning(
+    warn_user(ImplausibleParameterWarning(
         f"{what} = {worst:.4g} {unit}: above {limit:g} {unit}, implausible ({typical}); "
-        f"{hint}"), stacklevel=stacklevel)
+        f"{hint}"))
 
 
 # -- keywords ---------------------------------------------------------------------

@@ -82,8 +82,26 @@ def test_convergence_error_phase_includes_the_gilbert_factor_in_langevin():
     (lambda: DMI(3.0, [0, 0, 1], rc=3.0), r"DMI \|D\| = 3 eV"),
 ])
 def test_implausible_parameters_warn_where_they_enter(make, match):
-    with pytest.warns(ImplausibleParameterWarning, match=match):
+    with pytest.warns(ImplausibleParameterWarning, match=match) as caught:
         make()
+    # attributed to the line that gave the value (here: this file), not to
+    # the package's internals, however deep the check sits
+    assert all(w.filename == __file__ for w in caught), [w.filename for w in caught]
+
+
+def test_timestep_warning_points_at_the_users_line():
+    """The warning of a run() or step() names the user's line, whichever
+    depth of the package (a run, a step, a re-synchronised state) checks it."""
+    atoms = fcc_cobalt(2)
+    dyn = CollectivePRK(atoms, 3 * units.fs)
+    with pytest.warns(TimestepWarning) as caught:
+        dyn.run(1)
+    atoms = fcc_cobalt(2)
+    dyn = Langevin(atoms, 3 * units.fs, 300.0, spin_damping=0.1, friction=0.0)
+    with pytest.warns(TimestepWarning) as more:
+        dyn.step()
+    assert [w.filename for w in [*caught, *more]
+            if isinstance(w.message, TimestepWarning)] == [__file__] * 2
 
 
 def test_reassigned_parameters_are_checked_too():

@@ -22,7 +22,6 @@ import contextlib
 import difflib
 import inspect
 import os
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +36,7 @@ from ..md import SpinLatticeDynamics
 from ..md.errors import TimestepWarning
 from ..spins import get_moments, split_moments
 from ..terms import Coupling, Term
-from ..validate import REQUIRED
+from ..validate import REQUIRED, warn_user
 
 __all__ = ["load_input", "check_input", "build_scene", "build_integrator", "in_folder", "make",
            "take", "refuse_unknown", "check_keywords", "check_table", "refuse_flags",
@@ -652,14 +651,14 @@ def warn_implausible(spec, steps):
                "0.01 here, LAMMPS's fix langevin damp 0.1 ps (metal units) is 0.01")
     key = f"friction = {friction:g} (1/fs) in [integrator]"
     if steps and tau > steps * timestep:
-        warnings.warn(f"{key}: the lattice relaxes towards the bath temperature over "
-                      f"1/friction = {tau:.4g} fs, longer than the whole run ({steps} steps "
-                      f"x {timestep:g} fs = {steps * timestep:.4g} fs), so it stays far from "
-                      f"it; {typical}", InputWarning, stacklevel=2)
+        warn_user(f"{key}: the lattice relaxes towards the bath temperature over "
+                  f"1/friction = {tau:.4g} fs, longer than the whole run ({steps} steps "
+                  f"x {timestep:g} fs = {steps * timestep:.4g} fs), so it stays far from "
+                  f"it; {typical}", InputWarning)
     elif tau < timestep:
-        warnings.warn(f"{key}: 1/friction = {tau:.3g} fs is shorter than a step "
-                      f"({timestep:g} fs): the lattice is overdamped, its motion mostly "
-                      f"noise; {typical}", InputWarning, stacklevel=2)
+        warn_user(f"{key}: 1/friction = {tau:.3g} fs is shorter than a step "
+                  f"({timestep:g} fs): the lattice is overdamped, its motion mostly "
+                  f"noise; {typical}", InputWarning)
 
 
 def _positive_number(x):

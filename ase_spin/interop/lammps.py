@@ -24,7 +24,6 @@ from __future__ import annotations
 import os
 import shlex
 import shutil
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,7 +41,7 @@ from ..md.splitting import SuzukiTrotter
 from ..spins import get_moments, split_moments
 from ..terms.base import Term
 from ..terms.lammps_form import LammpsFix, LammpsPair, number_text, vector_text
-from ..validate import integer, positive_scalar, real_array
+from ..validate import integer, positive_scalar, real_array, warn_user
 
 __all__ = ["write_lammps", "LammpsTypes", "LammpsPair", "LammpsFix",
            "LammpsFiles", "LammpsIntegratorWarning", "deck_file_name", "DECK_SPECIAL"]
@@ -573,7 +572,7 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
     types = LammpsTypes(species, magnetic, rotation, hamiltonian.conventions)
     parts = _term_parts(hamiltonian, types)
     for text in notices:
-        warnings.warn(text, LammpsIntegratorWarning, stacklevel=2)
+        warn_user(text, LammpsIntegratorWarning)
 
     names = _check_names({"data_name": data_name, "input_name": input_name,
                           "dump_name": dump_name, "energy_name": energy_name}, parts)

@@ -5,13 +5,13 @@ calculator results (the conventions of :mod:`ase_spin.interop.lammps`)."""
 from __future__ import annotations
 
 import re
-import warnings
 from pathlib import Path
 
 import numpy as np
 from ase import Atoms
 
 from ..constants import HBAR_LAMMPS
+from ..validate import warn_user
 from .lammps import HEADER, PS
 
 __all__ = ["LammpsDumpWarning", "read_lammps_spin_dump"]
@@ -121,8 +121,8 @@ def _frames(path):
                        f"its atom count is too large)")
             if not frames:
                 raise ValueError(message + "; no frame is complete") from None
-            warnings.warn(f"{message}; it is left out, the complete frames before it "
-                          f"({len(frames)}) are read", LammpsDumpWarning, stacklevel=3)
+            warn_user(f"{message}; it is left out, the complete frames before it "
+                      f"({len(frames)}) are read", LammpsDumpWarning)
             break
         frames.append((step, bounds, box, columns, rows, k + 10))
         k += 9 + n

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import re
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,6 +11,7 @@ from ase import Atoms
 from ase.data import atomic_numbers
 
 from ..terms.tabulated import ShellExchange
+from ..validate import warn_user
 
 __all__ = ["read_tb2j", "TB2JExchange"]
 
@@ -82,10 +82,10 @@ class TB2JExchange:
                 if rmax is not None and d > rmax:
                     continue
                 if hi - lo > spread:
-                    warnings.warn(
+                    warn_user(
                         f"TB2J: the {n} {key[0]}-{key[1]} pairs at {d:.4f} Å have J from "
                         f"{lo:.6g} to {hi:.6g} eV (not equivalent): ShellExchange uses their "
-                        f"mean {J:.6g} eV", stacklevel=2)
+                        f"mean {J:.6g} eV")
                 rows.append((d, J))
             table[key] = rows or None
         return ShellExchange(table, tol=tol, offset=offset)
@@ -254,13 +254,13 @@ def read_tb2j(path):
     np.maximum.at(hi, inv, J_tb2j)
     if (hi - lo > 2e-4).any():  # meV: twice TB2J's printed precision
         q = int(np.argmax(hi - lo))
-        warnings.warn(f"{path}: the two directions of the pair {uniq[q].tolist()} have J "
-                      f"{lo[q]} and {hi[q]} meV; using their mean", stacklevel=2)
+        warn_user(f"{path}: the two directions of the pair {uniq[q].tolist()} have J "
+                  f"{lo[q]} and {hi[q]} meV; using their mean")
     single = int((counts == 1).sum())
     if single:
-        warnings.warn(f"{path}: {single} of the {len(uniq)} pairs are listed in one direction "
-                      f"only (TB2J lists both (i, j, R) and (j, i, -R)): the file may be cut "
-                      f"short or edited", stacklevel=2)
+        warn_user(f"{path}: {single} of the {len(uniq)} pairs are listed in one direction "
+                  f"only (TB2J lists both (i, j, R) and (j, i, -R)): the file may be cut "
+                  f"short or edited")
     Jbar = total / counts
     ia, ib, Su = uniq[:, 0], uniq[:, 1], uniq[:, 2:]
     dist = np.linalg.norm(pos[ib] + Su @ cell - pos[ia], axis=1)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import functools
 import inspect
-import warnings
 
 import numpy as np
 from ase import units
@@ -33,7 +32,7 @@ from ..io.progress import run_with_progress
 from ..io.trajectories import check_trajectory_target
 from ..spins import name_atoms, split_moments
 from ..terms.base import Want
-from ..validate import flag, positive_scalar, real_array, real_scalar, unknown_keywords
+from ..validate import flag, positive_scalar, real_array, real_scalar, unknown_keywords, warn_user
 from .compositions import composition_coefficients
 from .errors import TimestepWarning
 from .lattice import LatticeMotion
@@ -330,8 +329,8 @@ class SpinLatticeDynamics(AtomsBond, LatticeMotion, Observables, MolecularDynami
             advice = ("so small a timestep is most likely a unit slip" if too_small else
                       f"keep h·ω below {MAX_PHASE} rad per step (about 20 steps per period) "
                       "for accurate dynamics")
-            warnings.warn(TimestepWarning(self.dt / units.fs, problems, advice,
-                                          self._unit_hint(fastest, too_small)), stacklevel=4)
+            warn_user(TimestepWarning(self.dt / units.fs, problems, advice,
+                                          self._unit_hint(fastest, too_small)))
 
     def _fastest_precession(self, q, spins, mu):
         """ω_s (:func:`fastest_precession`) at positions q and unit spins, from

@@ -5,13 +5,14 @@ from __future__ import annotations
 import numbers
 import os
 import sys
-import warnings
 import weakref
 from collections import deque
 
 from ase import units
 from ase.parallel import world
 from ase.utils import IOContext
+
+from ..validate import warn_user
 
 __all__ = ["SpinMDLogger", "LangevinLogger", "SPIN_TEMPERATURE_WINDOW"]
 
@@ -109,9 +110,8 @@ class SpinMDLogger(IOContext):
             fd.flush()
             state["file"] = os.path.abspath(name)
         else:
-            warnings.warn(f"the copy of the log line writing to {fd!r:.60} goes to "
-                          "os.devnull: only a named file or '-' can be reopened",
-                          stacklevel=2)
+            warn_user(f"the copy of the log line writing to {fd!r:.60} goes to "
+                      "os.devnull: only a named file or '-' can be reopened")
             state["file"] = None
         return state
 

@@ -17,11 +17,10 @@ the pair lists' fine skin").
 
 from __future__ import annotations
 
-import warnings
 
 import numpy as np
 
-from ..validate import MIN_DISTANCE, ImplausibleParameterWarning
+from ..validate import ImplausibleParameterWarning, MIN_DISTANCE, warn_user
 from .checks import MAX_IMAGES, check_cell, closest_pair, face_distances, largest_displacements
 from .pairs import PairList
 from .search import (filter_count, filter_fill, full_from_half, grid_half, half_from_full,
@@ -192,11 +191,11 @@ class NeighborCache:
                                       MIN_DISTANCE)
         if count:
             others = f" ({count} pairs closer than {MIN_DISTANCE:g} Å)" if count > 1 else ""
-            warnings.warn(ImplausibleParameterWarning(
+            warn_user(ImplausibleParameterWarning(
                 f"atoms {i} and {j} are {r:.3g} Å apart{others}: closer than "
                 f"{MIN_DISTANCE:g} Å, where no two atoms of a solid or molecule are; "
                 "a duplicated atom, or positions in other units than Å (nm, bohr, "
-                "fractional coordinates given as Cartesian)?"), stacklevel=2)
+                "fractional coordinates given as Cartesian)?"))
 
     def _search_half(self, positions, cell, pbc):
         """The half list within cutoff + skin as (row, j, image, shifts table)

@@ -19,7 +19,7 @@ def _check_size(K, what):
     warn_implausible(K, MAX_SITE_ENERGY, what, "eV per atom",
                      "magnetocrystalline anisotropies are μeV to a few meV per atom",
                      "a value in meV, in J/m³ or per formula unit given as eV per atom? "
-                     "ase_spin takes K in eV per magnetic atom", stacklevel=4)
+                     "ase_spin takes K in eV per magnetic atom")
 
 
 @nb.njit(cache=True, inline="always")

@@ -121,13 +121,12 @@ class Cubic(Coupling):
         return f"Cubic(J0={self.J0}, rc={self.rc})"
 
 
-def check_size(J, what, stacklevel=4):
+def check_size(J, what):
     """ImplausibleParameterWarning for a coupling |J| above MAX_COUPLING eV
     (per pair; ``J`` a number or an array of them)."""
     J = np.asarray(J, dtype=float)
     warn_implausible(float(np.abs(J).max(initial=0.0)), MAX_COUPLING, what, "eV",
-                     "exchange couplings are meV to ~0.1 eV per pair", "energy",
-                     stacklevel=stacklevel)
+                     "exchange couplings are meV to ~0.1 eV per pair", "energy")
 
 
 def checked_values(coupling, r):
