@@ -14,8 +14,8 @@ from .io.viewing import plot_spins, spin_colors, write_ovito_xyz
 from .md import (HBAR, CollectivePRK, IntegrationError, Langevin, SpinConvergenceError,
                  SpinLatticeDynamics, SpinMDLogger, SuzukiTrotter, UnstableStepError, relax_spins)
 from .spins import get_moments, get_spins, set_spins
-from .terms import (DMI, EAM, BetheSlater, BiquadraticExchange, CalculatorTerm, Coupling, Cubic,
-                    CubicAnisotropy, Exchange, LennardJones, ShellExchange, Tabulated, Term,
+from .terms import (DIPOLAR_CODATA, DIPOLAR_LAMMPS, DMI, EAM, BetheSlater, BiquadraticExchange,
+                    CalculatorTerm, Coupling, Cubic, CubicAnisotropy, Dipolar, Exchange, LennardJones, ShellExchange, Tabulated, Term,
                     UniaxialAnisotropy, Zeeman)
 from .terms.base import Want
 from .validate import ImplausibleParameterWarning
@@ -31,6 +31,7 @@ __all__ = [
     "recover_trajectory", "complete_frames", "write_lammps", "read_lammps_spin_dump",
     "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic", "Zeeman",
     "UniaxialAnisotropy", "CubicAnisotropy", "DMI", "BiquadraticExchange", "CalculatorTerm", "EAM",
+    "Dipolar", "DIPOLAR_CODATA", "DIPOLAR_LAMMPS",
     "Tabulated", "ShellExchange", "neighbor_shells", "magnetic_symmetry", "read_tb2j",
     "write_ovito_xyz", "spin_colors", "plot_spins",
 ]

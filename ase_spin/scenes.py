@@ -12,8 +12,8 @@ from ase.build import bulk
 from .calculator import SpinLatticeCalculator
 from .spins import set_spins
 from .constants import MU_B_LAMMPS
-from .terms import (DMI, BetheSlater, BiquadraticExchange, Cubic, CubicAnisotropy, Exchange,
-                    LennardJones, ShellExchange, UniaxialAnisotropy, Zeeman)
+from .terms import (DMI, BetheSlater, BiquadraticExchange, Cubic, CubicAnisotropy, Dipolar,
+                    Exchange, LennardJones, ShellExchange, UniaxialAnisotropy, Zeeman)
 from .validate import ImplausibleParameterWarning
 
 __all__ = ["paper_chain", "paper_chain_terms", "fcc_cobalt", "fcc_cobalt_terms", "cone",
@@ -79,13 +79,14 @@ def field_anisotropy_terms():
 def other_spin_terms():
     """Every other spin term the package has, beside fcc_cobalt's exchange: the
     field and anisotropy of :func:`field_anisotropy_terms`, a cubic
-    anisotropy, interfacial DMI, biquadratic exchange and shell exchange (the
-    set ``ase-spin compile`` compiles every term's kernels with)."""
+    anisotropy, interfacial DMI, biquadratic exchange, shell exchange and the
+    dipolar interaction with a cutoff (the set ``ase-spin compile`` compiles
+    every term's kernels with; Ewald's real-space part runs the same kernels)."""
     return [*field_anisotropy_terms(), CubicAnisotropy(0.002, 0.001),
             DMI(0.003, [0.0, 0.0, 1.0], rc=2.6),
             BiquadraticExchange(BetheSlater(0.01, 0.001, 1.5), BetheSlater(0.002, 0.0005, 1.5),
                                 rc=2.6),
-            ShellExchange([(2.503, 0.02), (3.54, 0.004)], tol=0.2)]
+            ShellExchange([(2.503, 0.02), (3.54, 0.004)], tol=0.2), Dipolar(rc=4.0)]
 
 
 def fcc_cobalt(n=5, temperature_K=100.0, cone_deg=30.0, seed=0, magnitude=1.72, extra=(),

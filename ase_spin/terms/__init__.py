@@ -4,6 +4,7 @@ energy, forces, magnetic forces (spin terms) and virial."""
 from .ase_calculator import CalculatorTerm
 from .anisotropy import CubicAnisotropy, UniaxialAnisotropy
 from .biquadratic import BiquadraticExchange
+from .dipolar import DIPOLAR_CODATA, DIPOLAR_LAMMPS, Dipolar
 from .dmi import DMI
 from .base import SingleSiteTerm, SpinOperator, SpinTerm, Term
 from .eam import EAM
@@ -15,5 +16,6 @@ from .zeeman import Zeeman
 
 __all__ = ["CalculatorTerm", "Term", "SpinTerm", "SingleSiteTerm", "SpinOperator", "LennardJones", "Exchange",
            "Coupling", "BetheSlater", "Cubic", "ExchangeOperator", "Zeeman",
-           "UniaxialAnisotropy", "CubicAnisotropy", "DMI",
+           "UniaxialAnisotropy", "CubicAnisotropy", "DMI", "Dipolar", "DIPOLAR_CODATA",
+           "DIPOLAR_LAMMPS",
            "BiquadraticExchange", "Tabulated", "ShellExchange", "EAM"]

