@@ -1408,6 +1408,96 @@ def family_ase_calculators(quick=False):
     return cases
 
 
+CLI_SCENE = """
+[structure]
+build = {function = "bulk", name = "Co", crystalstructure = "fcc", a = 3.54, cubic = true}
+repeat = [1, 1, 2]
+rattle = 0.01
+
+[spins]
+magnitude = 1.72
+cone = 20
+
+[velocities]
+temperature = 100
+
+[[terms]]
+type = "LennardJones"
+epsilon = 0.4
+sigma = 2.2742
+rc = 4.7
+
+[[terms]]
+type = "Exchange"
+coupling = {type = "BetheSlater", J1 = 0.0446928, J2 = 0.003496, J3 = 1.4885}
+rc = 4.0
+
+[[terms]]
+type = "Zeeman"
+field = [0, 0, 2]
+
+[integrator]
+type = "Langevin"
+timestep = 0.5
+steps = 2
+temperature_K = 300
+spin_damping = 0.1
+friction = 0.01
+
+[output]
+trajectory = "md.traj"
+log = "md.log"
+interval = 1
+"""
+
+#: What a value of CLI_SCENE is replaced with (TOML text)
+CLI_VALUES = ["nan", "inf", "-1", "0", "1e300", "true", '"x"', "[]", "{}", "[1, 2]"]
+
+
+def family_cli_inputs(quick=False):
+    """``ase-spin run`` on CLI_SCENE with one value replaced (every value
+    line, by each of :data:`CLI_VALUES`): it runs (exit 0) or refuses with
+    exit 2 and one line on stderr, nothing written but the input file; no
+    traceback, no exit 1 for an input error, no file left behind."""
+    import contextlib
+    import io
+    import re
+
+    from ase_spin.app.cli import main as cli_main
+
+    lines = [k for k, line in enumerate(CLI_SCENE.splitlines())
+             if re.match(r"^\w+ = ", line) and not line.startswith(("type", "build"))]
+    values = CLI_VALUES[::3] if quick else CLI_VALUES
+    cases = []
+    for k in lines:
+        key = CLI_SCENE.splitlines()[k].split(" = ")[0]
+        for value in values:
+            def act(atoms, k=k, value=value):
+                text = CLI_SCENE.splitlines()
+                text[k] = text[k].split(" = ")[0] + " = " + value
+                folder = Path(tempfile.mkdtemp(prefix="fuzz-cli-"))
+                (folder / "scene.toml").write_text("\n".join(text) + "\n")
+                err = io.StringIO()
+                with contextlib.redirect_stderr(err), \
+                        contextlib.redirect_stdout(io.StringIO()):
+                    code = cli_main(["run", str(folder / "scene.toml"), "--no-progress"])
+                said = [s for s in err.getvalue().splitlines()
+                        if not s.startswith("ase_spin: compiling") and "Warning" not in s
+                        and not s.startswith("  ")]
+                files = sorted(p.name for p in folder.iterdir())
+                return {"code": code, "said": said, "files": files}
+
+            def check(result, atoms):
+                if result["code"] == 0:
+                    return "md.traj" in result["files"]
+                return (result["code"] == 2 and len(result["said"]) == 1
+                        and result["said"][0].startswith("ase-spin: error:")
+                        and result["files"] == ["scene.toml"])
+            cases.append(Case("cli_inputs", f"{key} = {value}", act, expect="result",
+                              check=check))
+    return cases
+
+
 def families(quick=False):
     """name -> list of cases (``quick``: the default test run's subset)."""
     return {
@@ -1427,6 +1517,7 @@ def families(quick=False):
         "langevin": family_langevin(stride=61 if quick else 1),
         "systems": family_systems(),
         "security": family_security(),
+        "cli_inputs": family_cli_inputs(quick),
         "symmetry": family_symmetry(quick),
         "eam_files": family_eam_files(quick),
         "lammps_files": family_lammps_files(quick),

@@ -248,6 +248,11 @@ def test_a_term_exported_by_the_package_is_usable_by_name(tmp_path, monkeypatch)
      "unknown key 'spin_damping' in [integrator] (CollectivePRK)"),
     (("interval = 4", "intervall = 4"),
      "unknown key 'intervall' in [output] (did you mean 'interval'?)"),
+    (("repeat = [2, 2, 2]", "repeat = [2, -1, 2]"),
+     "[structure] repeat must be a positive integer or three of them"),
+    (("rattle = 0.03", "rattle = -0.1"),
+     "[structure] rattle must be a finite number >= 0"),
+    (("cone = 30", "cone = 200"), "[spins] cone must be a half-angle from 0 to 180"),
 ])
 def test_bad_input_is_refused_with_a_message_naming_it(tmp_path, capsys, change, message):
     text = SCENE.format(integrator="CollectivePRK", timestep=0.5, steps=12, interval=4,

@@ -409,13 +409,17 @@ def _structure(table):
         except (TypeError, ValueError, KeyError, RuntimeError) as err:
             raise InputError(f"[structure] build = {function}(...): {err}") from None
     repeat = take(t, "structure", "repeat", None, (int, list))
-    if isinstance(repeat, list) and (len(repeat) != 3 or not all(
-            isinstance(r, int) and not isinstance(r, bool) for r in repeat)):
-        raise InputError(f"[structure] repeat must be an integer or three integers, got "
-                         f"{_as_written(repeat)}")
+    if repeat is not None and not (
+            (isinstance(repeat, int) and repeat >= 1)
+            or (isinstance(repeat, list) and len(repeat) == 3 and all(
+                isinstance(r, int) and not isinstance(r, bool) and r >= 1 for r in repeat))):
+        raise InputError(f"[structure] repeat must be a positive integer or three of them, "
+                         f"got {_as_written(repeat)}")
     if repeat is not None:
         atoms = atoms.repeat(repeat)
     rattle = take(t, "structure", "rattle", 0.0, (int, float))
+    if not 0.0 <= rattle < np.inf:
+        raise InputError(f"[structure] rattle must be a finite number >= 0 (Å), got {rattle}")
     seed = take(t, "structure", "seed", 0, int)
     if rattle:
         atoms.rattle(float(rattle), seed=seed)
@@ -450,6 +454,8 @@ def _spins(atoms, table):
         raise InputError(f'[spins] direction must be three numbers or "random", got '
                          f"{_as_written(direction)}")
     cone = take(t, "spins", "cone", None, (int, float))
+    if cone is not None and not 0.0 <= cone <= 180.0:
+        raise InputError(f"[spins] cone must be a half-angle from 0 to 180 (degrees), got {cone}")
     if direction is None:
         has = atoms.has("initial_magmoms") and np.ndim(atoms.arrays["initial_magmoms"]) == 2
         axis = ase_spin.get_spins(atoms) if has else np.array([0.0, 0.0, 1.0])
