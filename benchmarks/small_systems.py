@@ -12,7 +12,10 @@ threads, i.e. ``threads="auto"``: all threads or one, whichever is faster), µs 
 evaluation (``Evaluator.evaluate``: energy, forces and magnetic forces; with all
 threads and with one, the faster) and their ratio; steps and
 evaluations timed alternately in blocks (median over blocks), midpoint sweeps
-and geometries per step. ``--compare`` runs this in a fresh process per tree
+and geometries per step; and, in a fresh process per scene, µs per step of
+its first ``dyn.run(2000)`` (numba's cache warm: loading the kernels from it
+included), what a user's first short run of the default path costs. Nothing
+is switched: the paths timed are the defaults. ``--compare`` runs this in a fresh process per tree
 (PYTHONPATH set to it), alternating the trees round by round, after one warm-up
 run of each (numba's caches); a worktree of an older commit: ``git worktree
 add /tmp/old <commit>``. Prints the machine and the load average.
@@ -25,31 +28,57 @@ import subprocess
 import sys
 import time
 
+FIRST_RUN_STEPS = 2000
 
-def measure(blocks=15):
-    import numba as nb
-    import numpy as np
+
+def scenes():
+    """name -> (build the Atoms, the integrator for them, steps per timed block)."""
     from ase import units
 
-    from ase_spin import CollectivePRK, Want
-    from ase_spin.md import fused
+    from ase_spin import CollectivePRK
     from ase_spin.scenes import fcc_cobalt, paper_chain
 
-    # the compiled small-system paths whatever the run's length (a short run
-    # does not compile them: md/fused.py), compiled in the warm-up below
-    fused.FUSE_AFTER_STEPS = 0
-
-    want = Want(energy=True, forces=True, magnetic_forces=True)
-    scenes = {
+    return {
         "fcc Co N=500": (lambda: fcc_cobalt(5),
                          lambda a: CollectivePRK(a, 0.1 * units.fs), 20),
         "paper chain N=30": (paper_chain,
                              lambda a: CollectivePRK(a, 2.0**-6, hbar=1.0,
                                                      precession="spin"), 400),
     }
+
+
+def first_run(name, steps=FIRST_RUN_STEPS):
+    """µs per step of this process's first ``dyn.run(steps)`` of a scene."""
+    build, integrator, _ = scenes()[name]
+    dyn = integrator(build())
+    t0 = time.perf_counter()
+    dyn.run(steps)
+    return (time.perf_counter() - t0) / steps * 1e6
+
+
+def first_runs(tree=None):
+    """:func:`first_run` of each scene, each in a fresh process (of ``tree``)."""
+    env = dict(os.environ)
+    if tree is not None:
+        env["PYTHONPATH"] = os.path.abspath(tree)
+    out = {}
+    for name in scenes():
+        res = subprocess.run([sys.executable, os.path.abspath(__file__), "--first-run", name],
+                             cwd=tree, env=env, check=True, capture_output=True, text=True)
+        out[name] = round(float(res.stdout.strip().splitlines()[-1]), 2)
+    return out
+
+
+def measure(blocks=15):
+    import numba as nb
+    import numpy as np
+
+    from ase_spin import Want
+
+    want = Want(energy=True, forces=True, magnetic_forces=True)
     out = {}
     most = nb.get_num_threads()
-    for name, (build, integrator, steps) in scenes.items():
+    for name, (build, integrator, steps) in scenes().items():
         atoms = build()
         dyn = integrator(atoms)
         dyn.run(2 * steps)
@@ -91,10 +120,17 @@ def main(argv=None):
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--blocks", type=int, default=15)
     parser.add_argument("--json", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--first-run", metavar="SCENE", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.first_run:
+        print(first_run(args.first_run))
+        return
     sys.path.insert(0, os.path.dirname(__file__))
     if not args.compare:
+        first = first_runs()
         result = measure(args.blocks)
+        for name, us in first.items():
+            result[name][f"first_run{FIRST_RUN_STEPS}_us"] = us
         if args.json:
             print(json.dumps(result))
             return

@@ -67,7 +67,6 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), os.pardir, "tests"))
 
 from ase_spin import CollectivePRK, SuzukiTrotter  # noqa: E402
 from ase_spin.terms.base import Want  # noqa: E402
-from ase_spin.md import fused  # noqa: E402
 from ase_spin.md.errors import TimestepWarning  # noqa: E402
 from ase_spin.md.compositions import composition_coefficients  # noqa: E402
 from ase_spin.md.ode import reference_solution  # noqa: E402
@@ -77,11 +76,6 @@ from spirit_peer import (SOLVERS, SpiritHeisenberg, load_spirit, run_collective,
     spirit_available)
 from ase_spin._jit.threads import SERIAL_BELOW  # noqa: E402
 from machine import describe  # noqa: E402
-
-# the compiled blocks of small-system steps whatever a run's length (a short
-# run does not compile them, md/fused.py): compiled once in the warm-up below,
-# as a long run or `ase-spin compile` would
-fused.FUSE_AFTER_STEPS = 0
 
 CONE_DEG = 30.0
 SEED = 7

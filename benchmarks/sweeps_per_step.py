@@ -19,7 +19,6 @@ from ase import units
 sys.path.insert(0, os.path.dirname(__file__))
 
 from ase_spin import CollectivePRK  # noqa: E402
-from ase_spin.md import fused  # noqa: E402
 from ase_spin.scenes import fcc_cobalt  # noqa: E402
 from machine import describe  # noqa: E402
 
@@ -28,7 +27,6 @@ CASES = ((4, 1.0), (4, 1.25), (4, 2.0), (2, 0.25), (2, 0.5), (6, 2.0))
 
 def main():
     warnings.simplefilter("ignore")  # the TimestepWarning of large steps is the point here
-    fused.FUSE_AFTER_STEPS = 0  # the compiled blocks of steps in short runs too
     print(describe(), f"\n# load {os.getloadavg()[0]:.2f}", flush=True)
     for lattice in ("frozen", "moving"):
         for order, dt in CASES:

@@ -17,10 +17,7 @@ import gc, json
 from ase import units
 from numba.core.registry import CPUDispatcher
 import ase_spin
-from ase_spin.md import fused
 from ase_spin.scenes import fcc_cobalt, field_anisotropy_terms, other_spin_terms
-
-fused.FUSE_AFTER_STEPS = 0  # the fused step of small systems too, whatever the run's length
 
 for n in (3, 8):  # 108 atoms (serial kernels), 2048 (threaded)
     for extra in ((), field_anisotropy_terms()):

@@ -329,10 +329,9 @@ def _run(atoms, steps, stress, dt=0.2 * units.fs, langevin=False):
 
 @pytest.fixture
 def fused_steps(monkeypatch):
-    """Let N = 108 take the fused step in a short run (as tests/test_small_systems.py),
-    one step at a time (the blocks of them, tested in test_small_systems.py, would
-    compile a loop around every storage form's step), and count the fused steps."""
-    monkeypatch.setattr(fused, "FUSE_AFTER_STEPS", 0)
+    """Let N = 108 take the fused step one step at a time (the blocks of them,
+    tested in test_small_systems.py, would compile a loop around every storage
+    form's step), and count the fused steps."""
     monkeypatch.setattr(fused, "collective_block", lambda *args: (0, 0, 0, 0))
     from conftest import spy_fused
 

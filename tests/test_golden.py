@@ -12,8 +12,7 @@ RECORD = golden.load()
 
 @pytest.mark.parametrize("name", list(golden.SCENES))
 def test_scene_ends_on_the_recorded_bits(name, monkeypatch):
-    if name.endswith("_fused"):
-        golden.fused_now(monkeypatch.setattr)
+    golden.general_path(name, monkeypatch.setattr)
     digest, fingerprint = golden.run(name)
     hashes = RECORD["hashes"].get(golden.cpu())
     if hashes is not None and name in hashes:

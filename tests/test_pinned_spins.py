@@ -19,7 +19,6 @@ from ase_spin import (CollectivePRK, FixSpins, Langevin, ShellExchange, SpinLatt
                       SuzukiTrotter, UniaxialAnisotropy, get_spins, relax_spins)
 from ase_spin.constraints import MARK, lattice_constraints, pinned_spins
 from ase_spin.interop.lammps import LammpsIntegratorWarning, write_lammps
-from ase_spin.md import fused
 from ase_spin.md.ode import reference_solution
 from ase_spin.scenes import fcc_cobalt, field_anisotropy_terms, paper_chain
 
@@ -216,7 +215,6 @@ def test_fused_step_and_blocks_with_pinned_spins_equal_the_general_path(scene, m
     """FixSpins is not a lattice constraint: a small system keeps its compiled
     step and blocks of steps (the compensated sums too), with the same bits as
     the general path."""
-    monkeypatch.setattr(fused, "FUSE_AFTER_STEPS", 0)  # (a short run: blocks all the same)
     used = spy_fused(monkeypatch)
     runs = []
     for general in (False, True):

@@ -19,34 +19,16 @@ from ase_spin.terms import Cubic, Exchange, LennardJones, lennard_jones
 from conftest import general_path_only, interrupted_at, spy_fused
 
 
-@pytest.fixture(autouse=True)
-def _fuse_short_runs(monkeypatch):
-    """These tests run a few steps: let systems of 64–1 500 atoms take the
-    fused step without the length a run needs to repay its compilation."""
-    monkeypatch.setattr(fused, "FUSE_AFTER_STEPS", 0)
-
-
-def test_fused_step_of_small_systems_waits_for_a_long_run_or_the_cache():
-    """64–1 500 atoms: the fused step is compiled only for a run long enough to
-    repay it (~15 s once per install), unless it is compiled already."""
-    from types import SimpleNamespace
-
-    cold = SimpleNamespace(overloads={}, _cache=SimpleNamespace(
-        _cache_file=SimpleNamespace(_index_path="/nonexistent/ase_spin_fused.nbi")))
-    warm = SimpleNamespace(overloads={"sig": object()})
-    short = SimpleNamespace(max_steps=500, nsteps=0)
-    long = SimpleNamespace(max_steps=10**6, nsteps=10)
-    limit = 20_000
-    assert fused.FUSE_AFTER_STEPS == 0  # (this module's fixture)
-    fused.FUSE_AFTER_STEPS = limit
-    try:
-        assert not fused._pays(short, cold)
-        assert fused._pays(long, cold)
-        assert fused._pays(short, warm)
-        assert fused._pays(SimpleNamespace(max_steps=limit + 5, nsteps=5), cold)
-        assert not fused._pays(SimpleNamespace(max_steps=limit + 5, nsteps=6), cold)
-    finally:
-        fused.FUSE_AFTER_STEPS = 0
+def test_fused_step_of_small_systems_is_taken_in_a_short_first_run(monkeypatch):
+    """64–1 500 atoms: the fused step and blocks of them are the default path
+    whatever the run's length (its compilation paid by ``ase-spin compile`` or
+    the first run that reaches it, not by running slower)."""
+    used = spy_fused(monkeypatch)
+    atoms = fcc_cobalt(3)
+    assert 64 <= len(atoms) < threads.SERIAL_BELOW
+    dyn = CollectivePRK(atoms, 0.1 * units.fs)
+    dyn.run(5)
+    assert used["done"] > 0 and used["blocks"] > 0
 
 
 @pytest.mark.parametrize("nthreads", [1, 2, 3])
@@ -446,8 +428,7 @@ def test_run_in_blocks_equals_step_by_step_bitwise(scene, order, monkeypatch):
 
 def _spy_runners(monkeypatch, name):
     """Record (arguments, result) of every call of the block runners that
-    ``fused.<name>`` makes (its dispatcher's cache attributes kept, for
-    fused._pays)."""
+    ``fused.<name>`` makes."""
     calls = []
     real = getattr(fused, name)
 
@@ -459,8 +440,6 @@ def _spy_runners(monkeypatch, name):
             calls.append((args, result))
             return result
 
-        wrapped.overloads = run.overloads
-        wrapped._cache = run._cache
         return wrapped
 
     monkeypatch.setattr(fused, name, spy)
@@ -639,7 +618,6 @@ def test_fused_end_forces_begun_in_the_last_rounds_pass_change_no_bit(monkeypatc
     pieces): the same bits as with a pass for each, blocks and single steps."""
     from ase_spin.md import fused
 
-    monkeypatch.setattr(fused, "FUSE_AFTER_STEPS", 0)
     pieces = fused._pieces
 
     def go(merge):

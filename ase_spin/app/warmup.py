@@ -35,7 +35,6 @@ import ase_spin
 
 from .._jit import cache as compilation
 from .._jit.reductions import balanced_chunks
-from ..md import fused
 from ..neighbors import NeighborCache
 from ..scenes import fcc_cobalt, field_anisotropy_terms, other_spin_terms
 from .inputs import build_integrator, build_scene, in_folder, load_input
@@ -95,14 +94,10 @@ def _exercise(atoms, dyn):
     if dyn is None:
         _exercise_lists(atoms)
     if dyn is not None:
-        # the fused step of small systems too: without a warm-up it is compiled
-        # only for runs long enough to repay it (md/fused.py)
-
-        saved, fused.FUSE_AFTER_STEPS = fused.FUSE_AFTER_STEPS, 0
-        try:
-            dyn.run(4)  # the first step alone, then a block (fused.collective_block)
-        finally:
-            fused.FUSE_AFTER_STEPS = saved
+        # the first step alone, then a block: for a small system its fused step
+        # and a block of them (md/fused.py), compiled here rather than in a
+        # user's first run
+        dyn.run(4)
         # and a step that ends in a frame (a trajectory, any observer but the
         # log line): it asks the spin operators for the energy and the virial
         dyn.attach(lambda: None, interval=1)

@@ -19,11 +19,16 @@ same bit for bit. Whatever the general path would stop at (an atom moving too
 far, a pair list to rebuild, a midpoint solve that fails, non-finite forces)
 makes the fused step give up before it has changed any state; the general path
 then takes the step (and raises its error, if any).
+
+The fused step is taken whenever it applies, whatever the run's length: a
+small system's fastest exact path is its default path. Its compilation (once
+per combination of pieces and per install, then loaded from numba's disk
+cache) is paid by ``ase-spin compile`` (:mod:`ase_spin.app.warmup`) for the
+built-in scenes, or else by the first run that reaches it, not by running
+slower.
 """
 
 from __future__ import annotations
-
-import os
 
 import numpy as np
 
@@ -90,33 +95,6 @@ def _lattice_pieces(ev):
 
 
 _UNSEEN = object()
-
-
-#: Steps a run must still have ahead for a system of 64–1 500 atoms to compile its
-#: fused step when numba has not cached it yet: its compilation, once per install
-#: (``benchmarks/first_use.py``), is more than a short first run would save; a
-#: long run repays it, and every later run loads the step from the cache and
-#: saves a large part of a small system's step (``benchmarks/small_systems.py``;
-#: docs/benchmarks.md, "Why each fast path exists"). Below 64 atoms it is always used.
-FUSE_AFTER_STEPS = 20_000
-
-
-def _compiled(step):
-    """Whether the fused step is compiled in this process or in numba's disk cache."""
-    if step.overloads:
-        return True
-    try:
-        return os.path.exists(step._cache._cache_file._index_path)
-    except AttributeError:  # another numba's internals: assume not
-        return False
-
-
-def _pays(dyn, step):
-    """Use the fused step of a system of 64–1 500 atoms: if it costs no
-    compilation (:func:`_compiled`) or the run is long enough to repay it."""
-    if _compiled(step):
-        return True
-    return getattr(dyn, "max_steps", 0) - dyn.nsteps >= FUSE_AFTER_STEPS
 
 
 def _pieces(dyn):
@@ -191,8 +169,6 @@ def collective_step(dyn, h, stage):
     if got is None:
         return None
     step, lattice_data, data_q, data_t, merge = got
-    if not threads.tiny() and not _pays(dyn, step):
-        return None
     st = dyn._state
     ev = dyn.ev
     scale = dyn._scale(h)
@@ -335,10 +311,6 @@ def collective_block(dyn, steps):
         return 0, 0, 0, 0
     step, lattice_data, data_q, data_t, merge = got
     run = _runner(step)
-    # its compilation (the step's code is compiled again inside it) is
-    # paid as the fused step's is, whatever the size
-    if not (_pays(dyn, step) and _pays(dyn, run)):
-        return 0, 0, 0, 0
     ev = dyn.ev
     rules = st.policy
     gammas, scales, memory, local, max_iter, switch, adaptive = _stage_arrays(dyn)
@@ -409,8 +381,6 @@ def _frozen_block(dyn, steps):
     else:  # made by the general path when a stage first needs it
         full_row, full_nbr, full_c = _NO_FULL_LIST
         order = starts = _NO_FULL_LIST[0]
-    if not _pays(dyn, run):
-        return 0, 0, 0, 0
     gammas, scales, memory, local, max_iter, switch, adaptive = _stage_arrays(dyn)
     ring, counts, heads = _history_ring(st)
     theta = np.array(st.theta, dtype=float)
