@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import PACKAGE_PATH
+from conftest import PACKAGE_PATH, finish
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -70,7 +70,7 @@ def test_each_kernel_is_compiled_for_one_set_of_argument_types():
     specialised once (arguments normalised where they enter: contiguous arrays, float and
     int64 scalars), so a scene compiles each kernel once."""
     scan = started.pop() if started else start_scan()
-    stdout, stderr = scan.communicate(timeout=1200)
+    stdout, stderr = finish(scan, timeout=1200)
     assert scan.returncode == 0, stderr
     signatures = json.loads(stdout.strip().splitlines()[-1])
     assert len(signatures) > 20, signatures  # the scan saw the kernels

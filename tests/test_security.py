@@ -223,7 +223,7 @@ LOGGER = ('g = {type = "SpinMDLogger", dyn = {type = "LennardJones", epsilon = 0
      '[spins] direction must be three numbers or "random", got [0, 0, true]'),
     ("direction = [0, 0, 1]", "direction = [0, 1]", "[spins] direction must be three numbers"),
     ("repeat = [2, 2, 2]", "repeat = [2, true, 2]",
-     "[structure] repeat must be an integer or three integers, got [2, true, 2]"),
+     "[structure] repeat must be a positive integer or three of them, got [2, true, 2]"),
     ("a = 3.54", "a = true", "[structure] build = bulk(...) a = true: true/false"),
     ("magnitude = 1.72", "magnitude = {Co = 1.72, Fe = 2.2}",
      "[spins] magnitude has a value for Fe, which the structure does not have"),
