@@ -224,8 +224,7 @@ def _ahead_rank(item):
 
 
 #: Tests that fix two threads: each parallel region waits for both, so a child
-#: process on one of the two cores slows them up to 50× (the cases of
-#: test_reproducibility took 90 s beside the children and 4 s alone). They run
+#: process holding one of the two cores stalls them at every region. They run
 #: after the children have ended (:func:`_quiet`).
 QUIET = ("test_reproducibility.py",)
 

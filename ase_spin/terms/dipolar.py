@@ -280,6 +280,9 @@ class _Reciprocal:
     def field(self, m, H):
         """H_i += −∂E_k/∂m_i = −(8π/V) Σ_k A k [cos(k·r_i) Re S + sin(k·r_i) Im S]."""
         _, Sc, Ss = self._sums(m)
+        self._add_field(Sc, Ss, H)
+
+    def _add_field(self, Sc, Ss, H):
         H -= (2.0 * self.pref) * ((self.c * (self.A * Sc) + self.s * (self.A * Ss)) @ self.k)
 
     def add(self, m, H, F, want_h, want_f, want_v):
@@ -291,8 +294,7 @@ class _Reciprocal:
         AS2 = self.A * (Sc * Sc + Ss * Ss)
         energy = self.pref * AS2.sum()
         if want_h:
-            H -= (2.0 * self.pref) * ((self.c * (self.A * Sc) + self.s * (self.A * Ss))
-                                      @ self.k)
+            self._add_field(Sc, Ss, H)
         if want_f:
             im = self.s * (self.A * Sc) - self.c * (self.A * Ss)
             F += (2.0 * self.pref) * ((mk * im) @ self.k)
@@ -390,19 +392,28 @@ class DipolarOperator(SpinOperator):
             v = _list_pass(p.row, p.j, p.half, m, self.D, self.B, F, e_i, want.forces,
                            want.energies)
         energy, virial = v[0], v[1:].copy()
-        need_field = want.magnetic_forces or (want.energies and self.recip is not None)
-        H = self._field(m) if need_field else None
-        if self.recip is not None:
-            Ek, Wk = self.recip.add(m, None, F, False, want.forces, want.virial)
+        H = None
+        if self.recip is None:
+            if want.magnetic_forces:
+                H = self._field(m)
+        else:
+            # the field as _field makes it, its real-space part kept apart and
+            # its k-space part from the structure factors E_k takes anyway
+            need_field = want.magnetic_forces or want.energies
+            if need_field:
+                p = self.pairs
+                Hreal = np.zeros_like(m)
+                _list_field(p.row, p.j, p.half, m, self.D, self.B, Hreal)
+                H = Hreal.copy()
+            Ek, Wk = self.recip.add(m, H, F, need_field, want.forces, want.virial)
             m2 = np.einsum("ij,ij->i", m, m)
             energy += Ek + b.self_coef * m2.sum()
             virial += Wk
+            if need_field:
+                H -= (2.0 * b.self_coef) * m  # −∂/∂m of self_coef |m|²
             if want.energies:
                 # E_k + E_self is quadratic in m: ½ m_i·∂/∂m_i of it per atom,
                 # with H − H_real the field of those two parts
-                Hreal = np.zeros_like(m)
-                p = self.pairs
-                _list_field(p.row, p.j, p.half, m, self.D, self.B, Hreal)
                 e_i -= 0.5 * np.einsum("ij,ij->i", m, H - Hreal)
         pref = b.pref
         if want.magnetic_forces:
