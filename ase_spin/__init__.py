@@ -13,6 +13,7 @@ from .io.trajectories import complete_frames, recover_trajectory
 from .io.viewing import plot_spins, spin_colors, write_ovito_xyz
 from .md import (HBAR, CollectivePRK, IntegrationError, Langevin, SpinConvergenceError,
                  SpinLatticeDynamics, SpinMDLogger, SuzukiTrotter, UnstableStepError, relax_spins)
+from .optimize import GNEB, SpinLatticeFilter, SpinLBFGS, SpinVP
 from .spins import get_moments, get_spins, set_spins
 from .terms import (DIPOLAR_CODATA, DIPOLAR_LAMMPS, DMI, EAM, BetheSlater, BiquadraticExchange,
                     CalculatorTerm, Coupling, Cubic, CubicAnisotropy, Dipolar, Exchange, LennardJones, ShellExchange, Tabulated, Term,
@@ -34,4 +35,5 @@ __all__ = [
     "Dipolar", "DIPOLAR_CODATA", "DIPOLAR_LAMMPS",
     "Tabulated", "ShellExchange", "neighbor_shells", "magnetic_symmetry", "read_tb2j",
     "write_ovito_xyz", "spin_colors", "plot_spins",
+    "SpinLBFGS", "SpinVP", "SpinLatticeFilter", "GNEB",
 ]

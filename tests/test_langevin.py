@@ -587,7 +587,7 @@ def test_relax_spins_warns_about_no_timestep_it_chose():
     the count is the step of the first passing check (1, 2, 4, ..., 32, then
     multiples of 32), where the torque is within fmax."""
     from ase_spin.md.errors import TimestepWarning
-    from ase_spin.md.langevin import RELAX_CHECK
+    from ase_spin.md.relax import RELAX_CHECK
 
     import warnings
     atoms = fcc_cobalt(2, temperature_K=0.0, cone_deg=90.0,

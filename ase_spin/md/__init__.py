@@ -5,7 +5,8 @@ from .base import SpinLatticeDynamics
 from .collective import CollectivePRK
 from .compositions import COMPOSITIONS
 from .errors import IntegrationError, SpinConvergenceError, UnstableStepError
-from .langevin import Langevin, relax_spins
+from .langevin import Langevin
+from .relax import relax_spins
 from .logger import SpinMDLogger
 from .splitting import SuzukiTrotter
 
