@@ -8,7 +8,8 @@ from .hamiltonian import AtomsTooCloseError, Evaluator, Hamiltonian
 from .interop.lammps import write_lammps
 from .interop.lammps_dump import read_lammps_spin_dump
 from .interop.symmetry import magnetic_symmetry, neighbor_shells
-from .interop.tb2j import read_tb2j
+from .interop.pair_file import read_pairs, write_pairs
+from .interop.tb2j import read_tb2j, read_tb2j_pairs
 from .io.trajectories import complete_frames, recover_trajectory
 from .io.viewing import plot_spins, spin_colors, write_ovito_xyz
 from .md import (HBAR, CollectivePRK, IntegrationError, Langevin, SpinConvergenceError,
@@ -16,7 +17,8 @@ from .md import (HBAR, CollectivePRK, IntegrationError, Langevin, SpinConvergenc
 from .optimize import GNEB, SpinLatticeFilter, SpinLBFGS, SpinVP
 from .spins import get_moments, get_spins, set_spins
 from .terms import (DIPOLAR_CODATA, DIPOLAR_LAMMPS, DMI, EAM, BetheSlater, BiquadraticExchange,
-                    CalculatorTerm, Coupling, Cubic, CubicAnisotropy, Dipolar, Exchange, LennardJones, ShellExchange, Tabulated, Term,
+                    CalculatorTerm, Coupling, Cubic, CubicAnisotropy, Dipolar, Exchange, LennardJones, Neel,
+                    PairCouplings, ShellExchange, Tabulated, Term,
                     UniaxialAnisotropy, Zeeman)
 from .terms.base import Want
 from .validate import ImplausibleParameterWarning
@@ -32,8 +34,9 @@ __all__ = [
     "recover_trajectory", "complete_frames", "write_lammps", "read_lammps_spin_dump",
     "Term", "LennardJones", "Exchange", "Coupling", "BetheSlater", "Cubic", "Zeeman",
     "UniaxialAnisotropy", "CubicAnisotropy", "DMI", "BiquadraticExchange", "CalculatorTerm", "EAM",
-    "Dipolar", "DIPOLAR_CODATA", "DIPOLAR_LAMMPS",
+    "Dipolar", "DIPOLAR_CODATA", "DIPOLAR_LAMMPS", "Neel", "PairCouplings",
     "Tabulated", "ShellExchange", "neighbor_shells", "magnetic_symmetry", "read_tb2j",
+    "read_tb2j_pairs", "read_pairs", "write_pairs",
     "write_ovito_xyz", "spin_colors", "plot_spins",
     "SpinLBFGS", "SpinVP", "SpinLatticeFilter", "GNEB",
 ]

@@ -423,11 +423,12 @@ def test_terms_without_lammps_counterpart_are_refused_by_name(tmp_path):
 
 def test_integrators_map_refuse_or_warn(tmp_path):
     atoms = _scene(bulk("Co", "fcc", a=3.54, cubic=True).repeat(2))
-    # the collective integrator: written as fix nve/spin, with a warning in the deck too
+    # the collective integrator without the plugin (tests/test_lammps_plugin.py): written
+    # as fix nve/spin, with a warning in the deck too
     dyn = ase_spin.CollectivePRK(atoms, 0.2 * units.fs, hbar=ase_spin.HBAR_LAMMPS,
                                  lattice="frozen")
     with pytest.warns(LammpsIntegratorWarning, match="no collective"):
-        files = write_lammps(tmp_path / "a", atoms, dyn, steps=10)
+        files = write_lammps(tmp_path / "a", atoms, dyn, steps=10, plugin=False)
     deck = files.input.read_text()
     assert "fix integrate all nve/spin lattice frozen" in deck
     assert "timestep 0.0002" in deck and "# NOTE: LAMMPS has no collective" in deck

@@ -13,7 +13,7 @@ import pytest
 from ase.calculators import lj as ase_lj
 from scipy.spatial.transform import Rotation
 
-from ase_spin import (DMI, EAM, BetheSlater, BiquadraticExchange, CalculatorTerm, Cubic, Exchange, Hamiltonian, LennardJones,
+from ase_spin import (DMI, EAM, Neel, BetheSlater, BiquadraticExchange, CalculatorTerm, Cubic, Exchange, Hamiltonian, LennardJones,
                       SpinLatticeCalculator, UniaxialAnisotropy, Want, Zeeman, set_spins,
                       CubicAnisotropy, Tabulated)
 
@@ -76,6 +76,9 @@ TERMS = [
     ("cubic-skew", lambda R=np.eye(3): CubicAnisotropy(
         -0.02, 0.005, np.array([[1.0, 1.0, 0.0], [-1.0, 1.0, 0.3], [0.1, 0.0, 1.0]]) @ R.T)),
     ("dmi", lambda R=np.eye(3): DMI(0.004, R @ [0.3, -0.5, 1.0], rc=3.9)),
+    ("dmi-bulk", _isotropic(lambda: DMI(0.004, rc=3.9, form="bulk"))),
+    ("neel", _isotropic(lambda: Neel(BetheSlater(0.03, 0.2, 1.5), BetheSlater(0.02, -0.3, 1.6),
+                                     rc=3.9))),
     ("biquadratic", _isotropic(lambda: BiquadraticExchange(
         BetheSlater(*CO_BS), BetheSlater(0.004, -0.3, 1.3), rc=4.0))),
     ("biquadratic-offset-cubic", _isotropic(lambda: BiquadraticExchange(

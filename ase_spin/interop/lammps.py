@@ -42,6 +42,7 @@ from ..spins import get_moments, split_moments
 from ..terms.base import Term
 from ..terms.lammps_form import LammpsFix, LammpsPair, number_text, vector_text
 from ..validate import integer, positive_scalar, real_array, warn_user
+from .lammps_plugin import collective_fix_lines, find_plugin
 
 __all__ = ["write_lammps", "LammpsTypes", "LammpsPair", "LammpsFix",
            "LammpsFiles", "LammpsIntegratorWarning", "deck_file_name", "DECK_SPECIAL"]
@@ -336,15 +337,16 @@ def _fix_commands(parts):
 
 # -- the integrator ---------------------------------------------------------------
 
-def _integrator(dyn, timestep, lattice, notices):
-    """(timestep in ASE units, lattice keyword, thermostat settings or None)."""
+def _integrator(dyn, timestep, lattice, notices, plugin=False):
+    """(timestep in ASE units, lattice keyword, thermostat settings or None, the
+    plugin path for fix spin/collective or None)."""
     if dyn is None:
         if timestep is None:
             raise ValueError("write_lammps needs the timestep: pass an integrator (dynamics=) "
                              "or timestep= (ASE time units, e.g. 0.1 * ase.units.fs)")
         if lattice not in ("moving", "frozen"):
             raise ValueError(f'lattice must be "moving" or "frozen", got {lattice!r}')
-        return positive_scalar(timestep, "write_lammps timestep"), lattice, None
+        return positive_scalar(timestep, "write_lammps timestep"), lattice, None, None
     if not isinstance(dyn, SpinLatticeDynamics):
         raise TypeError(f"write_lammps takes an ase_spin integrator, got {type(dyn).__name__}")
     if dyn.precession != "moment":
@@ -357,14 +359,19 @@ def _integrator(dyn, timestep, lattice, notices):
                          "of motion that LAMMPS cannot run: build the scene with "
                          "SpinLatticeCalculator(..., conventions=\"lammps\") (or pass "
                          "gyromagnetic=\"lammps\" to the integrator) to export it")
-    if isinstance(dyn, CollectivePRK):
-        notices.append("LAMMPS has no collective (CollectivePRK) integrator: the deck uses fix "
+    collective = isinstance(dyn, CollectivePRK) and not hasattr(dyn, "spin_damping")
+    if collective and plugin is None:
+        plugin = find_plugin()
+    collective = collective and plugin not in (None, False)
+    if isinstance(dyn, CollectivePRK) and not collective:
+        notices.append("LAMMPS has no collective (CollectivePRK) integrator without the ase_spin "
+                       "plugin (build it: ase-spin build-lammps-plugin): the deck uses fix "
                        "nve/spin, the sequential Suzuki–Trotter splitting (SuzukiTrotter here); "
                        "trajectories agree only to the methods' error, O(dt²)")
-    elif not isinstance(dyn, SuzukiTrotter) and not hasattr(dyn, "spin_damping"):
+    elif not (collective or isinstance(dyn, SuzukiTrotter) or hasattr(dyn, "spin_damping")):
         notices.append(f"{type(dyn).__name__} is exported as fix nve/spin (the sequential "
                        "Suzuki–Trotter splitting)")
-    if dyn.order != 2:
+    if dyn.order != 2 and not collective:
         notices.append(f"order {dyn.order} has no LAMMPS counterpart: the deck runs fix "
                        "nve/spin's second-order step")
     if getattr(dyn, "rotation", "cayley") != "cayley":
@@ -382,7 +389,8 @@ def _integrator(dyn, timestep, lattice, notices):
         thermostat = dict(T=float(T), T_spin=float(T if Ts is None else Ts),
                           alpha=float(dyn.spin_damping),
                           friction=float(_attr(dyn, ("friction", "fr"), 0.0) or 0.0))
-    return float(dyn.dt), "frozen" if dyn.frozen_lattice else "moving", thermostat
+    return (float(dyn.dt), "frozen" if dyn.frozen_lattice else "moving", thermostat,
+            plugin if collective else None)
 
 
 def _check_finite_state(atoms):
@@ -486,7 +494,7 @@ def _data_file(atoms, species, masses, box, rotation, unit, mu):
 def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, timestep=None,
                  lattice="moving", dump_interval=10, thermo_interval=None, seed=12345,
                  data_name="atoms.data", input_name="in.spin", dump_name="dump.spin",
-                 energy_name="energy.spin"):
+                 energy_name="energy.spin", plugin=None):
     """Write a scene as a LAMMPS SPIN run: ``directory/atoms.data`` and
     ``directory/in.spin``, to be run there with ``mpirun lmp -in in.spin``.
 
@@ -504,8 +512,10 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
         constraints are refused.
     dynamics : ase_spin integrator, optional
         Its timestep, lattice mode and thermostat. SuzukiTrotter (Cayley,
-        order 2) is LAMMPS's ``fix nve/spin`` step; CollectivePRK and other
-        orders are exported as that step with a :class:`LammpsIntegratorWarning`;
+        order 2) is LAMMPS's ``fix nve/spin`` step; CollectivePRK (orders 2, 4,
+        6) is ``fix spin/collective`` of the ase_spin plugin (``plugin load``,
+        see ``plugin``), else, and other orders, that step with a
+        :class:`LammpsIntegratorWarning`;
         precession="spin" or gyromagnetic="moment" (equations LAMMPS does not
         have) are refused. An integrator with ``spin_damping`` (ase_spin's
         Langevin) adds ``fix langevin/spin T α seed`` and, with a friction,
@@ -531,6 +541,11 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
         none of ``$ & # ' " ` \\ * %``: :func:`deck_file_name`); potential
         files are copied under their own names, checked alike. A name the deck
         cannot hold is a ValueError naming it, before anything is written.
+    plugin : path, None or False
+        For a CollectivePRK: the ase_spin LAMMPS plugin the deck loads (a path
+        on the machine that runs it); None (default): the plugin built here
+        (:func:`~ase_spin.interop.lammps_plugin.find_plugin`), if any, else
+        ``fix nve/spin`` with a warning; False: ``fix nve/spin``.
 
     Returns
     -------
@@ -553,7 +568,7 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
                          "them, or add the matching LAMMPS fix to the deck by hand")
     pinned = pinned_spins(atoms)
     notices = []
-    dt, lattice, thermostat = _integrator(dynamics, timestep, lattice, notices)
+    dt, lattice, thermostat, plugin = _integrator(dynamics, timestep, lattice, notices, plugin)
     hamiltonian = _terms(hamiltonian, atoms)
     unit, mu = split_moments(get_moments(atoms))
     species, masses, magnetic = _scene_types(atoms, mu)
@@ -617,7 +632,11 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
         deck += [("# FixSpins: these spins keep their directions (fm = 0 in the dump, "
                   "not −∂E/∂s)"),
                  f"fix pin_spins {PINNED_GROUP} setforce/spin 0.0 0.0 0.0"]
-    deck += [f"fix integrate all nve/spin lattice {lattice}", f"timestep {number_text(dt / PS)}", ""]
+    if plugin is None:
+        deck.append(f"fix integrate all nve/spin lattice {lattice}")
+    else:  # CollectivePRK's step: the ase_spin plugin (ase_spin.interop.lammps_plugin)
+        deck += collective_fix_lines(dynamics, plugin, lattice)
+    deck += [f"timestep {number_text(dt / PS)}", ""]
     deck += ["compute magnetisation all spin",
              "compute spin_state all property/atom sp spx spy spz fmx fmy fmz",
              "variable pe equal pe", "variable ke equal ke",

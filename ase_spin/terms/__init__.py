@@ -11,6 +11,8 @@ from .eam import EAM
 from .couplings import BetheSlater, Coupling, Cubic
 from .exchange import Exchange, ExchangeOperator
 from .lennard_jones import LennardJones
+from .neel import Neel
+from .pair_couplings import PairCouplings
 from .tabulated import ShellExchange, Tabulated
 from .zeeman import Zeeman
 
@@ -18,4 +20,4 @@ __all__ = ["CalculatorTerm", "Term", "SpinTerm", "SingleSiteTerm", "SpinOperator
            "Coupling", "BetheSlater", "Cubic", "ExchangeOperator", "Zeeman",
            "UniaxialAnisotropy", "CubicAnisotropy", "DMI", "Dipolar", "DIPOLAR_CODATA",
            "DIPOLAR_LAMMPS",
-           "BiquadraticExchange", "Tabulated", "ShellExchange", "EAM"]
+           "BiquadraticExchange", "Tabulated", "ShellExchange", "EAM", "Neel", "PairCouplings"]

@@ -32,8 +32,9 @@ def _field(k, a, b, s, data, reverse):
 
 @nb.njit(cache=True, inline="always")
 def _energy(k, i, j, s, data):
-    """e = −(e_ij × D)·(s_i × s_j) = −e_ij·c with c = D × (s_i × s_j); the
-    force on j, f = −∂e/∂r_j = (c − (c·e_ij) e_ij)/r_ij; d_ij."""
+    """e = −(e_ij × D + D_b e_ij)·(s_i × s_j) = −e_ij·c with c = D × (s_i × s_j)
+    + D_b (s_i × s_j); the force on j, f = −∂e/∂r_j = (c − (c·e_ij) e_ij)/r_ij;
+    d_ij. (D the interfacial vector, D_b the bulk strength: one of them zero.)"""
     U, E, R, types, Dtab = data
     r = R[k]
     if r == 0.0:
@@ -43,13 +44,14 @@ def _energy(k, i, j, s, data):
     Dx = Dtab[ti, tj, 0]
     Dy = Dtab[ti, tj, 1]
     Dz = Dtab[ti, tj, 2]
-    # w = s_i × s_j, c = D × w
+    Db = Dtab[ti, tj, 3]
+    # w = s_i × s_j, c = D × w + D_b w
     wx = s[i, 1] * s[j, 2] - s[i, 2] * s[j, 1]
     wy = s[i, 2] * s[j, 0] - s[i, 0] * s[j, 2]
     wz = s[i, 0] * s[j, 1] - s[i, 1] * s[j, 0]
-    cx = Dy * wz - Dz * wy
-    cy = Dz * wx - Dx * wz
-    cz = Dx * wy - Dy * wx
+    cx = (Dy * wz - Dz * wy) + Db * wx
+    cy = (Dz * wx - Dx * wz) + Db * wy
+    cz = (Dx * wy - Dy * wx) + Db * wz
     ex = E[k, 0]
     ey = E[k, 1]
     ez = E[k, 2]
@@ -77,7 +79,7 @@ def _site(i, s, data):
 @threaded(always=True)
 def _geometry(pos, row, nbr, image, images, types, rc2, Dtab, U, E, R, other, Ubar):
     """For every pair k = (i → j) within rc: e_k = d_ij/r_ij, R_k = r_ij,
-    U_k = e_k × D_ij; zero beyond. With ``other`` given, Ubar_k = ½(other_k + U_k)."""
+    U_k = e_k × D + D_b e_k (the bond's DM vector); zero beyond. With ``other`` given, Ubar_k = ½(other_k + U_k)."""
     n = len(row) - 1
     want_mean = other.shape[0] > 0
     for i in nb.prange(n):
@@ -96,9 +98,10 @@ def _geometry(pos, row, nbr, image, images, types, rc2, Dtab, U, E, R, other, Ub
                 Dx = Dtab[ti, tj, 0]
                 Dy = Dtab[ti, tj, 1]
                 Dz = Dtab[ti, tj, 2]
-                ux = ey * Dz - ez * Dy
-                uy = ez * Dx - ex * Dz
-                uz = ex * Dy - ey * Dx
+                Db = Dtab[ti, tj, 3]
+                ux = (ey * Dz - ez * Dy) + Db * ex
+                uy = (ez * Dx - ex * Dz) + Db * ey
+                uz = (ex * Dy - ey * Dx) + Db * ez
             U[k, 0] = ux
             U[k, 1] = uy
             U[k, 2] = uz
@@ -125,59 +128,94 @@ def _pair_table(value, symbols, what):
 
 
 class DMI(PairSpinTerm):
-    r"""The Dzyaloshinskii–Moriya interaction in LAMMPS's form (``pair_style
-    spin/dmi``, after Rohart and Thiaville):
+    r"""The Dzyaloshinskii–Moriya interaction, with the DM vector of each bond
+    **D**_ij built from the bond's direction **e**_ij:
 
     .. math::
 
-        E = -\sum_{i<j} (\mathbf e_{ij}\times\mathbf D)\cdot(\mathbf s_i\times\mathbf s_j),
+        E = -\sum_{i<j} \mathbf D_{ij}\cdot(\mathbf s_i\times\mathbf s_j),
         \qquad \mathbf e_{ij} = \frac{\mathbf r_j - \mathbf r_i}{r_{ij}},
         \quad r_{ij} < r_c,
 
+    each pair once, with
+
+    - ``form="interfacial"`` (default; LAMMPS ``pair_style spin/dmi``, after
+      Rohart and Thiaville): **D**_ij = **e**_ij × **D**, perpendicular to the
+      bond; with **D** along the normal of a film this is the interfacial DMI
+      that stabilises Néel skyrmions. ``D`` (eV) is its strength and
+      ``direction`` (normalised here) the vector **D**/D;
+    - ``form="bulk"``: **D**_ij = D **e**_ij, along the bond (B20 chiral
+      magnets, FeGe, MnSi: Bloch skyrmions and helices; a chain with J and D
+      has the helix turning by arctan(D/J) per bond). No ``direction``.
+
+    In both, with **u**_ij = **D**_ij and **c** = **D** × (**s**_i × **s**_j)
+    (interfacial) or D (**s**_i × **s**_j) (bulk),
+
     .. math::
 
-        \mathbf B_i = \sum_j \mathbf s_j \times (\mathbf e_{ij}\times\mathbf D),
+        \mathbf B_i = \sum_j \mathbf s_j \times \mathbf u_{ij},
         \qquad
         \mathbf F_j = -\frac{\partial E}{\partial \mathbf r_j}
-        = \frac{\mathbf c - (\mathbf c\cdot\mathbf e_{ij})\mathbf e_{ij}}{r_{ij}},
-        \quad \mathbf c = \mathbf D\times(\mathbf s_i\times\mathbf s_j),
+        = \frac{\mathbf c - (\mathbf c\cdot\mathbf e_{ij})\mathbf e_{ij}}{r_{ij}}.
 
-    each pair once; the DM vector of a bond, **D**_ij = **e**_ij × **D**, lies
-    perpendicular to it: with **D** along the normal of a film this is the
-    interfacial DMI that stabilises Néel skyrmions. ``D`` (eV) is its
-    strength and ``direction`` (normalised here) the vector **D**/D; both may
-    be mappings keyed by pairs of chemical symbols. ``rc`` (Å) cuts it off.
+    ``D`` and ``direction`` may be mappings keyed by pairs of chemical
+    symbols. ``rc`` (Å) cuts it off. DM vectors given pair by pair (from DFT)
+    are :class:`~ase_spin.terms.pair_couplings.PairCouplings`.
 
-    LAMMPS's ``pair_coeff * * dmi rc D dx dy dz`` divides (dx, dy, dz) by its
-    squared length: give it a unit direction. Energy and magnetic forces match
-    LAMMPS; its mechanical forces do not (they are not −∂E/∂r: see
-    docs/terms.md), so ours are the derivative of this energy.
+    LAMMPS's ``pair_coeff * * dmi rc D dx dy dz`` is the interfacial form and
+    divides (dx, dy, dz) by its squared length: give it a unit direction.
+    Energy and magnetic forces match LAMMPS; its mechanical forces do not
+    (they are not −∂E/∂r: see docs/terms.md), so ours are the derivative of
+    this energy. LAMMPS has no bulk form (``spin/dmi`` forms e_ij × D from a
+    fixed vector): :meth:`lammps` refuses it.
     """
 
     name = "dmi"
     pair_field, pair_energy, pair_site = _field, _energy, _site
 
-    _parameters = {"D": "D", "direction": "direction", "rc": "rc"}
+    _parameters = {"D": "D", "direction": "direction", "rc": "rc", "form": "form"}
 
-    def __init__(self, D, direction, rc):
+    def __init__(self, D, direction=None, rc=None, form="interfacial"):
+        if form not in ("interfacial", "bulk"):
+            raise ValueError(f"DMI form must be 'interfacial' (D_ij = e_ij × D, LAMMPS spin/dmi) "
+                             f"or 'bulk' (D_ij = D e_ij), got {form!r}")
+        self.form = form
         self.D = pair_values(D, "DMI D", real_scalar)
         warn_implausible(self.D, MAX_COUPLING, "DMI |D|", "eV",
                          "Dzyaloshinskii–Moriya couplings are ~0.1 to a few meV per pair",
                          "energy")
-        self.direction = pair_values(direction, "DMI direction", unit_vector)
+        if form == "bulk":
+            if direction is not None:
+                raise ValueError("DMI form='bulk' takes no direction: the DM vector of each "
+                                 "bond is D e_ij, along the bond")
+            self.direction = None
+        else:
+            if direction is None:
+                raise ValueError("DMI form='interfacial' needs a direction (the vector D/|D|, "
+                                 "the film's normal for interfacial DMI)")
+            self.direction = pair_values(direction, "DMI direction", unit_vector)
+        if rc is None:
+            raise ValueError("DMI needs rc (Å), the cutoff")
         self.rc = length(rc, "DMI rc")
         self.cutoff = self.rc
         self._finish()
 
     def __repr__(self):
+        if self.form == "bulk":
+            return f"DMI({self.D!r}, rc={self.rc}, form='bulk')"
         return f"DMI({self.D!r}, {self.direction!r}, rc={self.rc})"
 
     def lammps(self, types):
         """``pair_style spin/dmi rc`` with ``pair_coeff I J dmi rc D dx dy dz``
         per pair of types, (dx, dy, dz) a unit vector (LAMMPS divides it by its
         squared length). Energy and magnetic forces as here; LAMMPS's lattice
-        force differs (see the class docstring)."""
+        force differs (see the class docstring). The bulk form has no LAMMPS
+        counterpart."""
 
+        if self.form == "bulk":
+            raise NotImplementedError(
+                "DMI form='bulk': LAMMPS's spin/dmi has only the interfacial form, the DM "
+                "vector e_ij × D of a fixed D; no LAMMPS pair style has D_ij = D e_ij")
         D = _pair_table(self.D, types.symbols, "DMI D")
         d = _pair_table(self.direction, types.symbols, "DMI direction")
         coeffs = []
@@ -195,12 +233,18 @@ class DMI(PairSpinTerm):
         symbols = system.species.symbols
         nt = len(symbols)
         D = _pair_table(self.D, symbols, "DMI D")
-        d = _pair_table(self.direction, symbols, "DMI direction")
-        Dtab = np.zeros((nt, nt, 3))
+        bulk = self.form == "bulk"
+        d = None if bulk else _pair_table(self.direction, symbols, "DMI direction")
+        # (Dx, Dy, Dz, D_bulk): the interfacial vector, or the bulk strength
+        Dtab = np.zeros((nt, nt, 4))
         for a in range(nt):
             for b in range(nt):
-                if D[a, b] is not None and d[a, b] is not None:
-                    Dtab[a, b] = D[a, b] * np.asarray(d[a, b])
+                if D[a, b] is None:
+                    continue
+                if bulk:
+                    Dtab[a, b, 3] = D[a, b]
+                elif d[a, b] is not None:
+                    Dtab[a, b, :3] = D[a, b] * np.asarray(d[a, b])
         rc2 = np.full((nt, nt), self.rc**2)
         return rc2, Dtab
 
