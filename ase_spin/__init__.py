@@ -1,7 +1,11 @@
 """ase_spin: coupled spin–lattice dynamics for the Atomic Simulation Environment."""
 
 from ._jit import cache as _compilation  # noqa: F401 - announces first-use compilation
+from .analysis import (StructureFactorRecorder, dynamical_structure_factor, magnon_bands, q_path,
+                       read_spin_series)
 from .calculator import SpinLatticeCalculator
+from .analysis import (Fluctuations, SpinCorrelation, SpinTemperature, SublatticeMagnetisation,
+                       TopologicalCharge, binder_crossing, block_average, topological_charge)
 from .constants import G_ELECTRON, HBAR_LAMMPS, MU_B, MU_B_LAMMPS
 from .constraints import FixSpins
 from .hamiltonian import AtomsTooCloseError, Evaluator, Hamiltonian
@@ -12,7 +16,7 @@ from .interop.pair_file import read_pairs, write_pairs
 from .interop.tb2j import read_tb2j, read_tb2j_pairs
 from .io.trajectories import complete_frames, recover_trajectory
 from .io.viewing import plot_spins, spin_colors, write_ovito_xyz
-from .md import (HBAR, CollectivePRK, IntegrationError, Langevin, SpinConvergenceError,
+from .md import (HBAR, CollectivePRK, IntegrationError, Langevin, MonteCarlo, SpinConvergenceError,
                  SpinLatticeDynamics, SpinMDLogger, SuzukiTrotter, UnstableStepError, relax_spins)
 from .optimize import GNEB, SpinLatticeFilter, SpinLBFGS, SpinVP
 from .spins import get_moments, get_spins, set_spins
@@ -39,4 +43,8 @@ __all__ = [
     "read_tb2j_pairs", "read_pairs", "write_pairs",
     "write_ovito_xyz", "spin_colors", "plot_spins",
     "SpinLBFGS", "SpinVP", "SpinLatticeFilter", "GNEB",
+    "q_path", "StructureFactorRecorder", "read_spin_series", "dynamical_structure_factor",
+    "magnon_bands",
+    "MonteCarlo", "Fluctuations", "SpinCorrelation", "SpinTemperature", "SublatticeMagnetisation",
+    "TopologicalCharge", "binder_crossing", "block_average", "topological_charge",
 ]

@@ -25,6 +25,7 @@ from ase import Atoms, units
 
 import ase_spin
 from ase_spin import DMI, CollectivePRK, Cubic, Exchange, SpinLatticeCalculator, Zeeman
+from ase_spin.analysis import LayerTriangulation
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--size", type=int, default=30, help="lattice sites along each side")
@@ -59,19 +60,12 @@ def skyrmion(chirality, radius=4.0 * a):
     return np.column_stack([chirality * np.sin(theta)[:, None] * radial, np.cos(theta)])
 
 
+triangulation = LayerTriangulation(atoms)  # Berg–Lüscher: Q = Σ Ω/(4π) over triangles
+
+
 def topological_charge(spins):
-    """Q = (1/4π) Σ Ω over the two triangles of every plaquette, Ω the signed
-    solid angle of three spins (Berg and Lüscher): ±1 for one skyrmion."""
-    g = spins.reshape(n, n, 3)  # [j, i]
-    s1, s2, s3, s4 = g, np.roll(g, -1, 1), np.roll(np.roll(g, -1, 1), -1, 0), np.roll(g, -1, 0)
-
-    def omega(a, b, c):
-        num = np.einsum("...k,...k", a, np.cross(b, c))
-        den = 1 + np.einsum("...k,...k", a, b) + np.einsum("...k,...k", b, c) \
-            + np.einsum("...k,...k", c, a)
-        return 2 * np.arctan2(num, den)
-
-    return float((omega(s1, s2, s3) + omega(s1, s3, s4)).sum() / (4 * np.pi))
+    """Q of the layer: ±1 for one skyrmion (ase_spin.analysis.topology)."""
+    return triangulation.charge(spins)
 
 
 energies = {}

@@ -95,3 +95,14 @@ def test_magnetisation_curve_out_is_a_picture_or_a_folder():
                                               Path("magnetisation_curve.txt"))
     assert module.output_paths(Path("figs")) == (Path("figs/magnetisation_curve.png"),
                                                  Path("figs/magnetisation_curve.txt"))
+
+
+def test_magnons_writes_its_figure_and_the_peaks_lie_on_the_bands(tmp_path):
+    pytest.importorskip("matplotlib")
+    done = run("magnons.py", "--size", "4", "--steps", "400", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert files_in(tmp_path) == ["magnons.png"]
+    assert reported(done.stdout, tmp_path) == [tmp_path / "magnons.png"]
+    resolution = float(re.search(r"resolution ([0-9.]+) meV", done.stdout).group(1))
+    worst = float(re.search(r"where resolved: ([0-9.]+) meV", done.stdout).group(1))
+    assert worst < resolution

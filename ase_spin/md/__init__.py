@@ -8,6 +8,7 @@ from .errors import IntegrationError, SpinConvergenceError, UnstableStepError
 from .langevin import Langevin
 from .relax import relax_spins
 from .logger import SpinMDLogger
+from .montecarlo import MonteCarlo
 from .splitting import SuzukiTrotter
 
-__all__ = ["SpinLatticeDynamics", "CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError", "SpinMDLogger", "SuzukiTrotter", "HBAR", "COMPOSITIONS", "Langevin", "relax_spins"]
+__all__ = ["SpinLatticeDynamics", "CollectivePRK", "IntegrationError", "SpinConvergenceError", "UnstableStepError", "SpinMDLogger", "SuzukiTrotter", "HBAR", "COMPOSITIONS", "Langevin", "relax_spins", "MonteCarlo"]

@@ -246,6 +246,11 @@ class Observables:
 
     def _observer_due(self, n, frames_only=False):
         for function, interval, _, _ in self.observers:
+            if not getattr(function, "needs_results", True):
+                # an observer that declares needs_results = False reads only the
+                # Atoms' positions and spins (written after every step it sees):
+                # no energy, no calculator results, no frame for it
+                continue
             if frames_only and isinstance(function, SpinMDLogger):
                 continue  # the log line reads the state, not the calculator
             if (interval > 0 and n % interval == 0) or (interval <= 0 and n == -interval):
