@@ -182,72 +182,6 @@ def interrupted_at(k, action):
         sys.settrace(None)
 
 
-#: Tests that are the first (often the only) to call a kernel no earlier test
-#: compiles, each taking seconds of numba compilation from a cold cache
-#: (measured with a numba:compile listener per test): colour-ordered and
-#: frozen-lattice solvers, fused steps of several combinations, the storage
-#: variants, the examples' scenes.
-COMPILE_AHEAD = (
-    "test_midpoint_solver.py",
-    "test_small_systems.py",
-    "test_exchange_storage.py",
-    "test_golden.py",
-    "test_examples.py",
-    "test_cli.py::test_dyn_run_progress_changes_nothing_but_the_display",
-    "test_cell_list.py::test_atoms_outside_the_cell_get_shifted_images",
-    "test_gaussian.py",
-    "test_langevin.py::test_bath_kernels_equal_the_spin_by_spin_formulas",
-    "test_langevin.py::test_pairs_sampled_with_the_end_field_from_the_midpoint",
-    "test_dipolar.py",
-    "test_ase_integration.py::test_emt_plus_exchange_derivatives_by_finite_differences",
-    "test_ase_integration.py::test_frames_with_a_frozen_lattice_and_an_open_system",
-    "test_ase_integration.py::test_timestep_warnings_name_the_value_in_fs",
-)
-
-#: The test that reads the scan of test_compilation (started with the run).
-SCAN = "test_each_kernel_is_compiled_for_one_set_of_argument_types"
-
-#: Set in the environment of the child that compiles ahead (it starts none).
-AHEAD_CHILD = "ASE_SPIN_TESTS_COMPILING_AHEAD"
-
-#: Child processes started for the run, stopped with it.
-children = []
-
-
-def _ahead_rank(item):
-    """The place in :data:`COMPILE_AHEAD` of the entry naming ``item``, or None."""
-    name = item.nodeid.split("/")[-1]
-    for rank, prefix in enumerate(COMPILE_AHEAD):
-        if name.startswith(prefix):
-            return rank
-    return None
-
-
-#: Tests that fix two threads: each parallel region waits for both, so a child
-#: process holding one of the two cores stalls them at every region. They run
-#: after the children have ended (:func:`_quiet`).
-QUIET = ("test_reproducibility.py",)
-
-
-def _is_quiet(item):
-    return item.nodeid.split("/")[-1].startswith(QUIET)
-
-
-def pytest_collection_modifyitems(session, config, items):
-    """The tests of :data:`COMPILE_AHEAD` run last, in its order, so that the
-    child compiling ahead (:func:`pytest_collection_finish`) has the run until
-    then to compile their kernels; then the :data:`QUIET` tests, once the
-    children have ended; then the test that reads the scan (started with the
-    run)."""
-    ahead = sorted((item for item in items if _ahead_rank(item) is not None),
-                   key=_ahead_rank)
-    scan = [item for item in items if item.name == SCAN]
-    quiet = [item for item in items if _is_quiet(item) and _ahead_rank(item) is None]
-    rest = [item for item in items if _ahead_rank(item) is None and item.name != SCAN
-            and not _is_quiet(item)]
-    items[:] = rest + ahead + quiet + scan
-
-
 def finish(child, timeout=1800):
     """Wait for a child process to end and return its (stdout, stderr), kept on
     it (``output``): a child writing to a pipe is read while it runs (a full
@@ -257,67 +191,12 @@ def finish(child, timeout=1800):
     return child.output
 
 
-@pytest.fixture(autouse=True)
-def _quiet(request):
-    """Before a :data:`QUIET` test: wait for the child processes to end."""
-    if _is_quiet(request.node):
-        for child in children:
-            try:
-                finish(child)
-            except subprocess.TimeoutExpired:  # a stuck child: run the test beside it
-                pass
-    yield
-
-
-#: Runs the command in its arguments at the lowest priority (nice 19): a test's
-#: threaded kernels wait at every parallel region for each of their threads, so
-#: a child that took time slices from one of them would slow the run it is
-#: meant to speed up.
-IDLE = """
-import os, sys
-os.nice(19)
-os.execv(sys.argv[1], sys.argv[1:])
-"""
+# The run on two cores: a second pytest process takes test files beside this
+# one (tests/two_runners.py); its hooks are this conftest's.
+from two_runners import (pytest_collection_modifyitems, pytest_configure,  # noqa: E402,F401
+                         pytest_runtest_logreport, pytest_runtestloop, pytest_sessionfinish,
+                         pytest_sessionstart, start_child)
 
 
 def pytest_collection_finish(session):
-    """A cold run compiles for minutes on one core while the other waits. Two
-    child processes take the second core: test_compilation's scan of every
-    kernel (for small and large systems; its test reads the output), which
-    also compiles the kernels most tests share, and, on what is left idle
-    (:data:`IDLE`), the tests of :data:`COMPILE_AHEAD` this session
-    holds (their results unread), which compiles their kernels into numba's
-    disk cache before this run reaches them."""
-    import os
-    import subprocess
-
-    if os.environ.get(AHEAD_CHILD):
-        return
-    if any(item.name == SCAN for item in session.items):
-        import test_compilation
-
-        test_compilation.started.append(test_compilation.start_scan())
-        children.append(test_compilation.started[-1])  # (its test may pop it)
-    ids = [item.nodeid for item in session.items if _ahead_rank(item) is not None]
-    if ids:
-        env = {**os.environ, AHEAD_CHILD: "1", "ASE_SPIN_QUIET_COMPILE": "1"}
-        children.append(subprocess.Popen(
-            [sys.executable, "-c", IDLE, sys.executable, "-m", "pytest", "-q", "-p",
-             "no:cacheprovider", *ids],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
-            cwd=Path(__file__).resolve().parents[1], start_new_session=True))
-
-
-def pytest_sessionfinish(session):
-    """The child the run did not wait for (stopped early, -x) is stopped with
-    it, its own children too."""
-    import os
-    import signal
-
-    for child in children:
-        if child.poll() is None:
-            try:
-                os.killpg(child.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-        finish(child)
+    start_child(session)

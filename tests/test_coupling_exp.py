@@ -85,7 +85,7 @@ def test_blocked_geometry_is_the_one_pair_formula_to_the_bit(twin, stored, mean,
     pairs = cache.sublist(4.3, half=True)  # pairs on both sides of rc = 4
     m = pairs.row[-1]
     bs = couplings.BetheSlater(0.0446928, 0.003496, J3)
-    params = (16.0, couplings.FORM_BETHE_SLATER, *bs._params)
+    params = (16.0, float(couplings.FORM_BETHE_SLATER), *bs._params)
     J0, g0, D = np.empty(m), np.empty(m), np.empty((m, 3))
     _one_pair_at_a_time(pos, pairs.row, pairs.j, pairs.image, pairs.images, params[0],
                         *params[2:], J0, g0, D)
@@ -130,7 +130,7 @@ def test_species_table_pass_equals_the_one_species_pass_to_the_bit(twin):
     pairs = cache.sublist(4.3, half=True)
     m = pairs.row[-1]
     bs = couplings.BetheSlater(0.0446928, 0.003496, 1.4885)
-    params = (16.0, couplings.FORM_BETHE_SLATER, *bs._params)
+    params = (16.0, float(couplings.FORM_BETHE_SLATER), *bs._params)
     table = np.zeros((2, 2, 5))
     table[:, :] = params
     table[1, 1, couplings.FORM] = couplings.FORM_OFF  # one species pair switched off: J = 0 there

@@ -863,7 +863,8 @@ def test_bath_kernels_equal_the_spin_by_spin_formulas(nthreads_kernel):
     np.testing.assert_array_equal(got1, got2)
     np.testing.assert_array_equal(before1, before2)
     damped = np.full_like(s, 7.0)
-    damp(s, B, k1, magnetic, damped)
+    none = np.empty((0, 3))
+    damp(s, B, k1, magnetic, damped, none, np.empty(0), none, none)
     # with the predictor's kick: the same damped spins, and the kick, B kept
     y0, c = rng.normal(size=(n, 3)), rng.uniform(0.0, 0.1, n)
     damped2, kick, keep = (np.full_like(s, 7.0) for _ in range(3))

@@ -21,7 +21,6 @@ spins, fields, axes) and rotated back on reading.
 
 from __future__ import annotations
 
-import os
 import shlex
 import shutil
 from dataclasses import dataclass
@@ -42,6 +41,7 @@ from ..spins import get_moments, split_moments
 from ..terms.base import Term
 from ..terms.lammps_form import LammpsFix, LammpsPair, number_text, vector_text
 from ..validate import integer, positive_scalar, real_array, warn_user
+from .lammps_names import DECK_SPECIAL, check_names, deck_file_name, same_file
 from .lammps_plugin import collective_fix_lines, find_plugin
 
 __all__ = ["write_lammps", "LammpsTypes", "LammpsPair", "LammpsFix",
@@ -147,98 +147,6 @@ class LammpsFiles:
         return f"cd {shlex.quote(str(self.directory))} && {run}"
 
 
-# -- names in the deck --------------------------------------------------------------
-
-#: Characters a file name in the deck may not hold: LAMMPS substitutes a
-#: variable at ``$``, continues a line at ``&``, starts a comment at ``#`` and
-#: quotes at ``'`` and ``"``; a shell substitutes at a backquote and escapes at
-#: a backslash; ``*`` and ``%`` in a dump name make one file per step or per
-#: processor.
-DECK_SPECIAL = "$&#'\"`\\*%"
-
-
-def deck_file_name(name, what):
-    """``name`` if it is a plain file name that the deck can hold and that stays
-    in the deck's directory: no path separator, not ``.`` or ``..``, no
-    whitespace or control character (a newline would add a line to the deck,
-    such as ``shell rm ...``), none of :data:`DECK_SPECIAL`. Else a
-    ValueError naming ``what`` and the character."""
-    if isinstance(name, os.PathLike):
-        name = os.fspath(name)
-    if not isinstance(name, str):
-        raise TypeError(f"write_lammps: {what} must be a file name (str), got {name!r:.80}")
-    problem = None
-    if name in ("", ".", ".."):
-        problem = "is not a file name"
-    else:
-        for ch in name:
-            if ch == "/" or ch == os.sep:
-                problem = (f"holds the path separator {ch!r}: the deck's files stay in its "
-                           "directory (give a plain name)")
-            elif ch.isspace() or not ch.isprintable():
-                problem = (f"holds the whitespace or control character {ch!r}, which would "
-                           "split the deck's line or add one")
-            elif ch in DECK_SPECIAL:
-                problem = f"holds the character {ch!r}, which LAMMPS or a shell reads specially"
-            if problem:
-                break
-    if problem:
-        raise ValueError(f"write_lammps: {what} {name!r} {problem}; nothing was written")
-    return name
-
-
-def _deck_text(text, what):
-    """Text of a term's LAMMPS form (arguments, element names from a potential
-    file): one line's worth, nothing LAMMPS substitutes or comments out."""
-    text = str(text)
-    for ch in text:
-        if (ch != " " and (ch.isspace() or not ch.isprintable())) or ch in "$&#'\"`":
-            raise ValueError(f"write_lammps: {what} {text!r:.80} holds the character {ch!r}, "
-                             "which the deck cannot hold (a new line, a LAMMPS variable, "
-                             "comment or quote); nothing was written")
-    return text
-
-
-def _check_names(names, parts):
-    """The deck's file names (``names``: what -> name) as plain names; refused,
-    before anything is written: a name or a term's text that the deck cannot
-    hold (:func:`deck_file_name`), two files of one name, and potential files
-    of one name from different places."""
-    names = {what: deck_file_name(name, what) for what, name in names.items()}
-    taken = {}
-    for what, name in names.items():
-        if name in taken:
-            raise ValueError(f"write_lammps: {taken[name]} and {what} are both {name!r}: "
-                             "one would overwrite the other; nothing was written")
-        taken[name] = what
-    sources = {}
-    for term, form in parts:
-        for item in form:
-            for f in getattr(item, "files", ()):
-                base = deck_file_name(Path(f).name, f"the potential file {str(f)!r}: its name")
-                if base in taken:
-                    raise ValueError(f"write_lammps: the potential file {str(f)!r} would be "
-                                     f"copied onto the {taken[base]} {base!r}: choose another "
-                                     f"{taken[base]}; nothing was written")
-                if base in sources and not _same_file(sources[base], f):
-                    raise ValueError(f"write_lammps: the potential files {str(sources[base])!r}"
-                                     f" and {str(f)!r} have one name, {base!r}, in the deck's "
-                                     "directory: rename one; nothing was written")
-                sources[base] = f
-            texts = ([item.style, item.args] + [a for _, _, a in getattr(item, "coeffs", ())]
-                     + list(getattr(item, "modify", ())) + [getattr(item, "group", "")])
-            for text in texts:
-                _deck_text(text, f"the LAMMPS form of the {term} term,")
-    return names
-
-
-def _same_file(a, b):
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return False
-
-
 # -- the frame --------------------------------------------------------------
 
 def _lammps_frame(cell):
@@ -309,7 +217,7 @@ def _pair_commands(parts, directory):
     for p in pairs:
         for f in p.files:
             target = Path(directory) / Path(f).name
-            if not _same_file(f, target):  # the deck written next to the potential
+            if not same_file(f, target):  # the deck written next to the potential
                 shutil.copy(f, target)
     for k, p in enumerate(pairs):
         # a style used twice in hybrid/overlay is named with its instance number
@@ -589,7 +497,7 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
     for text in notices:
         warn_user(text, LammpsIntegratorWarning)
 
-    names = _check_names({"data_name": data_name, "input_name": input_name,
+    names = check_names({"data_name": data_name, "input_name": input_name,
                           "dump_name": dump_name, "energy_name": energy_name}, parts)
     data_name, input_name = names["data_name"], names["input_name"]
     dump_name, energy_name = names["dump_name"], names["energy_name"]

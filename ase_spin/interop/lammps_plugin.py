@@ -30,6 +30,7 @@ import numpy as np
 
 from ..md.compositions import composition_coefficients
 from ..validate import integer
+from .lammps_names import DECK_SPECIAL
 
 __all__ = ["build_plugin", "find_plugin", "plugin_source_dir", "plugin_cache_dir",
            "collective_fix_lines", "PluginBuildError", "PLUGIN_STYLE", "PLUGIN_FILE"]
@@ -159,11 +160,6 @@ def build_plugin(directory=None, force=False, verbose=False):
     return built
 
 
-#: Characters a plugin path in the deck may not hold (LAMMPS splits a command
-#: at whitespace and substitutes, comments or quotes at these).
-_DECK_SPECIAL = "$&#'\"`\\*%"
-
-
 def collective_fix_lines(dyn, plugin, lattice):
     """The deck lines that run ``dyn`` (a CollectivePRK) with the plugin at
     ``plugin`` (a path on the machine that will run the deck): ``plugin load``
@@ -172,7 +168,7 @@ def collective_fix_lines(dyn, plugin, lattice):
     of each order (Suzuki's five stages for 4, Kahan–Li's nine for 6), the
     ones the plugin has: another is refused (ValueError)."""
     path = str(plugin)
-    bad = [ch for ch in path if ch.isspace() or not ch.isprintable() or ch in _DECK_SPECIAL]
+    bad = [ch for ch in path if ch.isspace() or not ch.isprintable() or ch in DECK_SPECIAL]
     if bad or not path:
         what = repr(bad[0]) if bad else "nothing"
         raise ValueError(f"write_lammps: the plugin path {path!r} holds {what}, which a LAMMPS "

@@ -154,7 +154,8 @@ class BathHalfSteps:
         st.s, st.s_spare, st.s_spare2 = y, x, y0
         st.carry_s[:] = 0.0  # the spins were replaced: no rounding error to carry
         if start.B_linear is None:  # no term of the form B = C s
-            damp_from(st.s_before, B1, 0.5 * kappa_h, mag, y)
+            none = np.empty((0, 3))  # no predictor's kick wanted (damp_from)
+            damp_from(st.s_before, B1, 0.5 * kappa_h, mag, y, none, np.empty(0), none, none)
             end = self._spin_energy_fields()
             self.bath_energy_spin += end.energy - start.energy
             st.B_next = end.B

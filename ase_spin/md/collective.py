@@ -562,7 +562,8 @@ class CollectivePRK(SpinLatticeDynamics):
                                               field, order, starts)
             pairs, c = operators[0].linear_pairs(mean)
             solve = kernels.midpoint_solve_half if pairs.half else kernels.midpoint_solve
-            return solve(threads.count(), pairs.row, pairs.j, c, *args, memory, local, field)
+            return solve(threads.count(), pairs.row, pairs.j, c, *args, memory, local, field,
+                         kernels.NO_ORDER, kernels.NO_ORDER)
         return kernels.midpoint_solve_operators(operators, *args, mean, memory, local)
 
     def _raise_not_converged(self, operators, s, W, its, delta, mean):

@@ -84,6 +84,7 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
     solved = False
     pending = False  # the end forces begun in this round's pass
     keep = np.empty((0, 0, 6))
+    no_order = np.zeros(0, dtype=np.int64)  # kernels.NO_ORDER: sweeps in index order
     settled_in = -1
     for rnd in range(policy.MAX_ROUNDS):
         F = FL.copy()
@@ -131,7 +132,8 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
             use_local = policy.auto_takes_local(one_sweep, theta)
         its, delta, status, which, measured, moved_w = solve_half(  # noqa: F821
             np.int64(1), row, nbr, c, s, W, Wnext, stilde, scale, use_tol, floor, max_iter,
-            policy.start_contraction(theta), carry_s, carry, memory, use_local, field)
+            policy.start_contraction(theta), carry_s, carry, memory, use_local, field,
+            no_order, no_order)
         if status == kernels.NOT_CONVERGED or policy.gives_up(its, measured, switch):
             return (GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
                     one_sweep, settled_round)
@@ -347,6 +349,7 @@ def run_frozen_steps(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, m
     the block before its step. Returns (steps done, s, carry of s, the spare W
     buffer, sweeps in all, sweeps of the last step)."""
     no_field = np.zeros((0, 3))  # kernels.NO_FIELD: no midpoint fields wanted
+    no_order = np.zeros(0, dtype=np.int64)  # kernels.NO_ORDER: sweeps in index order
     nstages = gammas.shape[0]
     increments = np.empty((nstages,) + s.shape)
     new = tentative(theta, theta_index, orders, sweep_order, one_sweep)
@@ -381,7 +384,7 @@ def run_frozen_steps(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, m
                 its, delta, status, which, measured, moved = solve(  # noqa: F821
                     np.int64(1), row, nbr, c, s, W, Wnext, stilde, scales[stage], tol, floor,
                     max_iter[stage], policy.start_contraction(theta[stage]), carry_s, carry,
-                    memory[stage], use_local, no_field)
+                    memory[stage], use_local, no_field, no_order, no_order)
             if status == kernels.NOT_CONVERGED or policy.gives_up(its, measured, switch[stage]):
                 failed = True
                 break

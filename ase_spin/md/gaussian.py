@@ -28,9 +28,8 @@ import math
 import numba as nb
 import numpy as np
 
-from .._jit.threads import threaded
 
-__all__ = ["normal", "normals", "fill_normal", "new_key"]
+__all__ = ["normal", "normals", "new_key"]
 
 _LAYERS = 256
 #: The ziggurat's base-strip edge and the common area of its layers (256 layers).
@@ -136,21 +135,6 @@ def normals(key, k0, out):
         for j in range(m):
             if np.isnan(out[j]):
                 out[j] = normal(key, k0 + j)
-
-
-#: Numbers per block of :func:`fill_normal` (a multiple of 3 and of 2: whole
-#: atoms and spins when the baths draw per block).
-_FILL_BLOCK = 768
-
-
-@threaded()
-def fill_normal(key, out):
-    """out.flat[k] = :func:`normal` (key, k) for every k (any shape, contiguous)."""
-    flat = out.reshape(-1)
-    n = flat.shape[0]
-    for blk in nb.prange((n + _FILL_BLOCK - 1) // _FILL_BLOCK):
-        lo = blk * _FILL_BLOCK
-        normals(key, lo, flat[lo:min(n, lo + _FILL_BLOCK)])
 
 
 def new_key(rng):

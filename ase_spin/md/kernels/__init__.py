@@ -13,14 +13,14 @@ from .predictor import (COEFFICIENTS, EXACT_ORDERS, LEAST_SQUARES_DEGREE, LOW_OR
                         PREDICTOR_DEPTH, best_extrapolation_order, best_order_rows,
                         difference_table, extrapolate, extrapolate_rows, increment,
                         max_abs_difference, newest_first)
-from .solvers import (NO_FIELD, end_points, linear_field_and_form, midpoint_solve,
+from .solvers import (NO_FIELD, NO_ORDER, end_points, linear_field_and_form, midpoint_solve,
                       midpoint_solve_half, midpoint_solve_operators, midpoint_update)
 from .state import commit_state, first_nonfinite_row, same, same_rows
 
 __all__ = ["CONVERGED", "ROUNDOFF", "NOT_CONVERGED", "MEMORY", "MAX_TURN", "BLOCK", "update_row",
            "local_midpoint", "local_midpoint_direction", "end_points_of_rows",
            "pair_field_row", "coloured_spins", "coloured_sweep", "after_sweep",
-           "anderson_mix", "anderson_mix_serial", "NO_FIELD", "midpoint_solve",
+           "anderson_mix", "anderson_mix_serial", "NO_FIELD", "NO_ORDER", "midpoint_solve",
            "midpoint_solve_half", "midpoint_update", "end_points",
            "linear_field_and_form", "midpoint_solve_operators", "drift", "kick",
            "kick_drift", "PREDICTOR_DEPTH", "LEAST_SQUARES_DEGREE", "EXACT_ORDERS",

@@ -200,10 +200,11 @@ def bath_block(s, out, before, B, B0, w, k1, sigma, key, k2, magnetic):
 
 
 @threaded()
-def damp_from(start, B, k, magnetic, out, y0=None, c=None, kick=None, keep=None):
+def damp_from(start, B, k, magnetic, out, y0, c, kick, keep):
     """out = D_B(k) start per magnetic spin (:func:`_damped`, a = k|B_i|).
 
-    With ``kick`` (the corrector of a bath, out = y; rows without spin 0),
+    With ``kick`` not empty (the corrector of a bath, out = y; rows without
+    spin 0; empty arrays for ``y0``, ``c``, ``kick``, ``keep``: none of this),
     also what the predictor needs, per row: kick = (y − y0) + c_i y × B (the
     move since the fields B were taken at y0, plus the explicit half step of
     precession in them: C·kick is the field change the midpoint sees, for a
@@ -238,7 +239,7 @@ def damp_from(start, B, k, magnetic, out, y0=None, c=None, kick=None, keep=None)
             out[i, 0] = x
             out[i, 1] = y
             out[i, 2] = z
-        if kick is not None:
+        if kick.shape[0] > 0:
             af, cc = _rows(y0, lo, m), c[lo:lo + m]
             kf, ef = _rows(kick, lo, m), _rows(keep, lo, m)
             for j in range(m):

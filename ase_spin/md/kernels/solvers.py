@@ -29,6 +29,9 @@ from .midpoint import (MEMORY, NOT_CONVERGED, coloured_spins, coloured_sweep, en
 #: empty array rather than None, so that callers that want them (the fused
 #: step, Langevin) and callers that do not share one compiled specialisation.
 NO_FIELD = np.zeros((0, 3))
+#: ``order`` and ``starts`` of :func:`_midpoint_solve` for sweeps in index
+#: order (an empty array, not None: one compiled specialisation for every caller).
+NO_ORDER = np.zeros(0, dtype=np.int64)
 
 
 @nb.njit(cache=True, inline="always")
@@ -55,8 +58,7 @@ _HALF = False
 
 
 def _midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
-                    theta0, carry, carry_out, memory=MEMORY, local=True, field=None,
-                    order=None, starts=None):
+                    theta0, carry, carry_out, memory, local, field, order, starts):
     r"""Solve the spherical-midpoint equation for fixed pair couplings J̄_ij:
 
     .. math::
@@ -116,7 +118,7 @@ def _midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, f
     last max|ΔW|, status, index of the buffer holding the result: 0 = W,
     1 = Wnext, contraction θ observed, or −1 if none was, max|ΔW| of the
     first sweep: how far the starting guess was from the result). ``field``,
-    if given and not empty (:data:`NO_FIELD`), receives the midpoint fields B̄_i
+    if not empty (:data:`NO_FIELD`), receives the midpoint fields B̄_i
     of the last sweep's input iterate (magnetic rows; the others are not
     written).
     """
@@ -141,15 +143,9 @@ def _midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, f
     first = 0.0
     status = -1
     it = 0
-    if order is None:
-        by_colour = np.empty(0, dtype=np.int64)
-    else:
-        by_colour = order
+    by_colour = order
     coloured = local and len(by_colour) > 0
-    if starts is None:
-        colour_starts = np.zeros(0, dtype=np.int64)
-    else:
-        colour_starts = starts
+    colour_starts = starts
     threaded_colours = coloured and nthreads > 1 and len(colour_starts) > 1
     for it in range(1, max_iter + 1):
         if _HALF:

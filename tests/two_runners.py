@@ -1,0 +1,245 @@
+"""The test run on two cores: a second pytest process runs test files beside
+this one.
+
+A cold run spends most of its time in numba compiling kernels, one core at a
+time; the machine the tests must fit (2 cores) would idle one core. So a run
+of more than one test file starts a second runner, a child pytest process
+with the same selection, and both take whole test files from one list, each
+file run by whichever process claims it first (an exclusive file create in a
+shared folder): this process from the front of the list, the child from the
+back, until they meet. Each process runs its files as pytest always does;
+the child sends every report of its tests (serialised by pytest's own hooks,
+as pytest-xdist does) through a file, and this process, once its own files
+are done, waits for the child and reports them as if it had run them: the
+summary, the failures and the exit status are those of one run. Tests that
+must have the machine to themselves (:data:`ALONE`) and the scan of the
+kernels' signatures (:data:`SCAN`) run after the child has ended, in this
+process.
+
+A child that dies leaves its unreported tests failed, with its exit status
+and its output. ``ASE_SPIN_TESTS_ONE_RUNNER=1`` runs everything in one
+process (as does a run of one file).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import pytest
+
+#: Set in the child's environment: the shared folder.
+SHARED = "ASE_SPIN_TESTS_SHARED_FOLDER"
+#: Set to 1 to run every test in this process.
+ONE_RUNNER = "ASE_SPIN_TESTS_ONE_RUNNER"
+
+#: Test files run after the child has ended, in this process: those that fix
+#: two threads (each parallel region waits for both, so a second process
+#: holding one of the two cores stalls them at every region).
+ALONE = ("test_reproducibility.py",)
+#: The test that reads test_compilation's scan of every kernel's signatures (a
+#: process of its own): run at the end, after ALONE, its scan started when
+#: this process has run its own files (the kernels are in numba's cache by
+#: then, so the scan loads them rather than compiling them a third time).
+SCAN = "test_each_kernel_is_compiled_for_one_set_of_argument_types"
+
+_state = {"child": None, "folder": None, "role": "main"}
+
+
+def _file(item):
+    return item.nodeid.split("::")[0]
+
+
+def _alone(item):
+    return _file(item).split("/")[-1] in ALONE
+
+
+def is_child():
+    return _state["role"] == "child"
+
+
+def pytest_configure(config):
+    if os.environ.get(SHARED):
+        _state["role"] = "child"
+        _state["folder"] = Path(os.environ[SHARED])
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """The child keeps the items the main process selected (its list)."""
+    if not is_child():
+        return
+    wanted = set((_state["folder"] / "items.txt").read_text().splitlines())
+    keep = [item for item in items if item.nodeid in wanted]
+    dropped = [item for item in items if item.nodeid not in wanted]
+    if dropped:
+        config.hook.pytest_deselected(items=dropped)
+    items[:] = keep
+
+
+def _groups(items):
+    """(the items by file, in order of first appearance; the tail: the scan
+    test, then the :data:`ALONE` files)."""
+    groups, scan, alone = {}, [], []
+    for item in items:
+        if item.name == SCAN:
+            scan.append(item)
+        elif _alone(item):
+            alone.append(item)
+        else:
+            groups.setdefault(_file(item), []).append(item)
+    return list(groups.items()), scan + alone
+
+
+def _claim(name):
+    """True if this process is the first to claim test file ``name``."""
+    path = _state["folder"] / "claims" / name.replace("/", "__")
+    try:
+        os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except FileExistsError:
+        return False
+    with open(path, "w") as fd:
+        fd.write(_state["role"])
+    return True
+
+
+def start_child(session):
+    """Start the second runner if the run has more than one test file to share."""
+    if is_child() or os.environ.get(ONE_RUNNER) or session.config.option.collectonly:
+        return
+    groups, _ = _groups(session.items)
+    if len(groups) < 2 or session.config.getoption("usepdb", False):
+        return
+    folder = Path(tempfile.mkdtemp(prefix="ase_spin_tests_"))
+    (folder / "claims").mkdir()
+    _state["folder"] = folder
+    (folder / "items.txt").write_text("\n".join(item.nodeid for item in session.items))
+    files = [name for name, _ in groups]
+    root = Path(session.config.rootpath)
+    env = {**os.environ, SHARED: str(folder), "ASE_SPIN_QUIET_COMPILE": "1"}
+    log = open(folder / "child.out", "w")
+    _state["child"] = subprocess.Popen(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-m", "",
+         "--rootdir", str(root), *files],
+        stdout=log, stderr=subprocess.STDOUT, env=env, cwd=root, start_new_session=True)
+    log.close()
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtestloop(session):
+    """Run the claimed files; in the main process, then the child's reports,
+    then the :data:`ALONE` files."""
+    if session.testsfailed and not session.config.option.continue_on_collection_errors:
+        return None  # pytest's own loop reports the collection errors
+    if _state["folder"] is None or session.config.option.collectonly:
+        return None  # one runner: pytest's own loop
+    import numba as nb
+
+    groups, tail = _groups(session.items)
+    if is_child():
+        groups, tail = groups[::-1], []
+    # One active thread each while both run: two processes of two threads on
+    # two cores would wait at every parallel region for a descheduled worker
+    # (milliseconds each). The threaded kernels split their work into
+    # NUMBA_NUM_THREADS chunks whatever the active count: the same bits.
+    nb.set_num_threads(1)
+    for name, items in groups:
+        if not _claim(name):
+            continue
+        _run(session, items)
+    if not is_child():
+        if any(item.name == SCAN for item in tail):
+            import test_compilation
+
+            test_compilation.started.append(test_compilation.start_scan())
+        _report_the_child(session, [items for name, items in groups])
+        nb.set_num_threads(nb.config.NUMBA_NUM_THREADS)
+        _run(session, tail)
+    return True
+
+
+def _run(session, items):
+    for k, item in enumerate(items):
+        nextitem = items[k + 1] if k + 1 < len(items) else None
+        item.config.hook.pytest_runtest_protocol(item=item, nextitem=nextitem)
+        if session.shouldfail:
+            raise session.Failed(session.shouldfail)
+        if session.shouldstop:
+            raise session.Interrupted(session.shouldstop)
+
+
+def pytest_runtest_logreport(report):
+    """In the child: every report, serialised, to the shared folder."""
+    if not is_child():
+        return
+    config = _state["config"]
+    data = config.hook.pytest_report_to_serializable(config=config, report=report)
+    with open(_state["folder"] / "reports.jsonl", "a") as fd:
+        fd.write(json.dumps(data) + "\n")
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_sessionstart(session):
+    _state["config"] = session.config
+
+
+def _report_the_child(session, groups):
+    """Wait for the child; report the tests of the files it claimed."""
+    child = _state["child"]
+    if child is None:
+        return
+    try:
+        child.wait(timeout=3600)
+    except subprocess.TimeoutExpired:
+        child.kill()
+        child.wait()
+    folder = _state["folder"]
+    config = session.config
+    reports = {}
+    path = folder / "reports.jsonl"
+    if path.exists():
+        for line in path.read_text().splitlines():
+            if line.strip():
+                report = config.hook.pytest_report_from_serializable(config=config,
+                                                                     data=json.loads(line))
+                reports.setdefault(report.nodeid, []).append(report)
+    output = (folder / "child.out").read_text(errors="replace")
+    for items in groups:
+        claim = folder / "claims" / _file(items[0]).replace("/", "__")
+        if not claim.exists() or claim.read_text() != "child":
+            continue
+        for item in items:
+            hook = item.ihook
+            hook.pytest_runtest_logstart(nodeid=item.nodeid, location=item.location)
+            got = reports.get(item.nodeid)
+            if got is None:
+                got = [_lost(item, child.returncode, output)]
+            for report in got:
+                hook.pytest_runtest_logreport(report=report)
+            hook.pytest_runtest_logfinish(nodeid=item.nodeid, location=item.location)
+
+
+def _lost(item, returncode, output):
+    """A failed report for a test of the child's that it never reported."""
+    from _pytest.reports import TestReport
+
+    text = (f"the second test runner (a child pytest process, tests/two_runners.py) "
+            f"ended with exit status {returncode} before reporting this test; the end "
+            f"of its output:\n{output[-4000:]}")
+    return TestReport(item.nodeid, item.location, {}, "failed", text, "call", [], 0.0)
+
+
+def pytest_sessionfinish(session):
+    """A child the run did not wait for (stopped early, -x) is stopped with it."""
+    import signal
+
+    child = _state["child"]
+    if child is not None and child.poll() is None:
+        try:
+            os.killpg(child.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        child.wait()
