@@ -83,10 +83,14 @@ class LammpsSpin:
     pairs : more pair styles overlaid, as (style with its arguments, its
         ``pair_coeff`` lines), e.g. ``("spin/dmi 4.0", ["pair_coeff * * spin/dmi
         dmi 4.0 0.001 0 0 1"])``
+    kspace : LAMMPS commands of a long-range solver (``kspace_style
+        ewald/dipole/spin 1e-10``, ``kspace_modify ...``); LAMMPS's dipolar
+        k-space styles refuse triclinic boxes, so an orthogonal cell is then
+        given to LAMMPS as an orthogonal box
     """
 
     def __init__(self, atoms, lj, exchange, timestep_fs=0.1, lattice="moving", threads=1,
-                 fixes=(), pairs=()):
+                 fixes=(), pairs=(), kspace=()):
         lammps = load_lammps()
         from ase import units
 
@@ -116,6 +120,8 @@ class LammpsSpin:
                  f"0 {float(cell[0, 0])!r} xlo xhi", f"0 {float(cell[1, 1])!r} ylo yhi",
                  f"0 {float(cell[2, 2])!r} zlo zhi", f"{xy!r} {xz!r} {yz!r} xy xz yz", "",
                  "Masses", "", f"1 {float(mass[0])!r}", "", "Atoms # spin", ""]
+        if kspace and xy == xz == yz == 0.0:
+            del lines[7]  # an orthogonal box
         # repr of Python floats: shortest strings that read back to the same double
         pos, unit, mu, vel = (a.tolist() for a in (atoms.positions, unit, mu, vel))
         for k in range(n):
@@ -139,6 +145,7 @@ class LammpsSpin:
             f"pair_coeff * * spin/exchange exchange {rc_ex!r} {J1!r} {J2!r} {J3!r}"
             + (" offset yes" if offset else ""),
             *extra_coeffs,
+            *kspace,
             f"pair_modify pair lj/cut shift {'yes' if shift else 'no'}",
             "neighbor 1.0 bin",
             "neigh_modify every 1 delay 0 check yes",

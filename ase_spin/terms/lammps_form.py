@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-__all__ = ["LammpsPair", "LammpsFix", "number_text", "vector_text"]
+__all__ = ["LammpsPair", "LammpsFix", "LammpsKspace", "number_text", "vector_text"]
 
 
 def number_text(x):
@@ -47,3 +47,19 @@ class LammpsFix:
     args: str
     group: str = "all"
     energy: bool = True
+
+
+@dataclass
+class LammpsKspace:
+    """The long-range solver of a term: ``kspace_style style args`` and
+    ``kspace_modify`` options (``"gewald 0.5 kmax/ewald 6 6 6"``, ``"slab
+    3.0"``: a slab, which the deck gives a fixed (``f``) boundary across, as
+    LAMMPS asks). One per deck."""
+
+    style: str
+    args: str
+    modify: list = field(default_factory=list)
+
+    @property
+    def slab(self):
+        return any(option.split()[0] == "slab" for option in self.modify)
