@@ -146,19 +146,37 @@ def pytest_runtestloop(session):
     # (milliseconds each). The threaded kernels split their work into
     # NUMBA_NUM_THREADS chunks whatever the active count: the same bits.
     nb.set_num_threads(1)
+    import time
+
+    start = time.perf_counter()
     for name, items in groups:
         if not _claim(name):
             continue
         _run(session, items)
+    _state["busy"] = time.perf_counter() - start
     if not is_child():
         if any(item.name == SCAN for item in tail):
             import test_compilation
 
             test_compilation.started.append(test_compilation.start_scan())
+        waited = time.perf_counter()
         _report_the_child(session, [items for name, items in groups])
+        _state["waited"] = time.perf_counter() - waited
         nb.set_num_threads(nb.config.NUMBA_NUM_THREADS)
         _run(session, tail)
     return True
+
+
+def pytest_terminal_summary(terminalreporter):
+    """One line on how the two runners shared the files (for the test time)."""
+    if is_child() or _state.get("busy") is None:
+        return
+    claims = _state["folder"] / "claims"
+    mine = sum(1 for f in claims.iterdir() if f.read_text() == "main")
+    terminalreporter.write_line(
+        f"two runners: this process ran {mine} test files in {_state['busy']:.0f} s, the "
+        f"second {sum(1 for _ in claims.iterdir()) - mine} and was waited for "
+        f"{_state['waited']:.0f} s more")
 
 
 def _run(session, items):
