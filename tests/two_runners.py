@@ -12,9 +12,8 @@ the child sends every report of its tests (serialised by pytest's own hooks,
 as pytest-xdist does) through a file, and this process, once its own files
 are done, waits for the child and reports them as if it had run them: the
 summary, the failures and the exit status are those of one run. Tests that
-must have the machine to themselves (:data:`ALONE`) and the scan of the
-kernels' signatures (:data:`SCAN`) run after the child has ended, in this
-process.
+must have the machine to themselves (:data:`ALONE`) run after the child has
+ended, in this process.
 
 A child that dies leaves its unreported tests failed, with its exit status
 and its output. ``ASE_SPIN_TESTS_ONE_RUNNER=1`` runs everything in one
@@ -41,10 +40,10 @@ ONE_RUNNER = "ASE_SPIN_TESTS_ONE_RUNNER"
 #: two threads (each parallel region waits for both, so a second process
 #: holding one of the two cores stalls them at every region).
 ALONE = ("test_reproducibility.py",)
-#: The test that reads test_compilation's scan of every kernel's signatures (a
-#: process of its own): run at the end, after ALONE, its scan started when
-#: this process has run its own files (the kernels are in numba's cache by
-#: then, so the scan loads them rather than compiling them a third time).
+#: The test that runs test_compilation's scan of every kernel's signatures (a
+#: process of its own): taken by whichever runner runs out of files first
+#: (the kernels are in numba's cache by then, so the scan loads them rather
+#: than compiling them a third time), while the other finishes its last file.
 SCAN = "test_each_kernel_is_compiled_for_one_set_of_argument_types"
 
 _state = {"child": None, "folder": None, "role": "main"}
@@ -81,8 +80,8 @@ def pytest_collection_modifyitems(session, config, items):
 
 
 def _groups(items):
-    """(the items by file, in order of first appearance; the tail: the scan
-    test, then the :data:`ALONE` files)."""
+    """(the items by file, in order of first appearance; the scan test as a
+    group of its own; the :data:`ALONE` files)."""
     groups, scan, alone = {}, [], []
     for item in items:
         if item.name == SCAN:
@@ -91,7 +90,7 @@ def _groups(items):
             alone.append(item)
         else:
             groups.setdefault(_file(item), []).append(item)
-    return list(groups.items()), scan + alone
+    return list(groups.items()), [(f"{_file(i)}::scan", [i]) for i in scan], alone
 
 
 def _claim(name):
@@ -110,7 +109,7 @@ def start_child(session):
     """Start the second runner if the run has more than one test file to share."""
     if is_child() or os.environ.get(ONE_RUNNER) or session.config.option.collectonly:
         return
-    groups, _ = _groups(session.items)
+    groups, _, _ = _groups(session.items)
     if len(groups) < 2 or session.config.getoption("usepdb", False):
         return
     folder = Path(tempfile.mkdtemp(prefix="ase_spin_tests_"))
@@ -138,9 +137,10 @@ def pytest_runtestloop(session):
         return None  # one runner: pytest's own loop
     import numba as nb
 
-    groups, tail = _groups(session.items)
+    groups, scan, tail = _groups(session.items)
     if is_child():
         groups, tail = groups[::-1], []
+    groups = groups + scan
     # One active thread each while both run: two processes of two threads on
     # two cores would wait at every parallel region for a descheduled worker
     # (milliseconds each). The threaded kernels split their work into
@@ -155,12 +155,8 @@ def pytest_runtestloop(session):
         _run(session, items)
     _state["busy"] = time.perf_counter() - start
     if not is_child():
-        if any(item.name == SCAN for item in tail):
-            import test_compilation
-
-            test_compilation.started.append(test_compilation.start_scan())
         waited = time.perf_counter()
-        _report_the_child(session, [items for name, items in groups])
+        _report_the_child(session, groups)
         _state["waited"] = time.perf_counter() - waited
         nb.set_num_threads(nb.config.NUMBA_NUM_THREADS)
         _run(session, tail)
@@ -205,7 +201,8 @@ def pytest_sessionstart(session):
 
 
 def _report_the_child(session, groups):
-    """Wait for the child; report the tests of the files it claimed."""
+    """Wait for the child; report the tests of the groups ((claim name,
+    items)) it claimed."""
     child = _state["child"]
     if child is None:
         return
@@ -225,8 +222,8 @@ def _report_the_child(session, groups):
                                                                      data=json.loads(line))
                 reports.setdefault(report.nodeid, []).append(report)
     output = (folder / "child.out").read_text(errors="replace")
-    for items in groups:
-        claim = folder / "claims" / _file(items[0]).replace("/", "__")
+    for name, items in groups:
+        claim = folder / "claims" / name.replace("/", "__")
         if not claim.exists() or claim.read_text() != "child":
             continue
         for item in items:
