@@ -18,7 +18,7 @@ from .io.trajectories import complete_frames, recover_trajectory
 from .io.viewing import plot_spins, spin_colors, write_ovito_xyz
 from .md import (HBAR, CollectivePRK, IntegrationError, Langevin, MonteCarlo, SpinConvergenceError,
                  SpinLatticeDynamics, SpinMDLogger, SuzukiTrotter, UnstableStepError, relax_spins)
-from .optimize import GNEB, SpinLatticeFilter, SpinLBFGS, SpinVP
+from .optimize import GNEB, HTST, SpinLatticeFilter, SpinLBFGS, SpinVP
 from .spins import get_moments, get_spins, set_spins
 from .terms import (DIPOLAR_CODATA, DIPOLAR_LAMMPS, DMI, EAM, BetheSlater, BiquadraticExchange,
                     CalculatorTerm, Coupling, Cubic, CubicAnisotropy, Dipolar, Exchange, LennardJones, Neel,
@@ -42,7 +42,7 @@ __all__ = [
     "Tabulated", "ShellExchange", "neighbor_shells", "magnetic_symmetry", "read_tb2j",
     "read_tb2j_pairs", "read_pairs", "write_pairs",
     "write_ovito_xyz", "spin_colors", "plot_spins",
-    "SpinLBFGS", "SpinVP", "SpinLatticeFilter", "GNEB",
+    "SpinLBFGS", "SpinVP", "SpinLatticeFilter", "GNEB", "HTST",
     "q_path", "StructureFactorRecorder", "read_spin_series", "dynamical_structure_factor",
     "magnon_bands",
     "MonteCarlo", "Fluctuations", "SpinCorrelation", "SpinTemperature", "SublatticeMagnetisation",

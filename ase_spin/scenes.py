@@ -1,5 +1,7 @@
-"""The reference scenes: the paper's chain and the fcc Co crystal of the LAMMPS
-comparison, as ready-to-run ASE Atoms (calculator and spins attached)."""
+"""The reference scenes: the paper's chain, the fcc Co crystal of the LAMMPS
+comparison and a DMI monolayer with skyrmions (the energy-landscape checks
+against LAMMPS and Spirit), as ready-to-run ASE Atoms (calculator and spins
+attached)."""
 
 from __future__ import annotations
 
@@ -17,7 +19,8 @@ from .terms import (DMI, BetheSlater, BiquadraticExchange, Cubic, CubicAnisotrop
 from .validate import ImplausibleParameterWarning
 
 __all__ = ["paper_chain", "paper_chain_terms", "fcc_cobalt", "fcc_cobalt_terms", "cone",
-           "field_anisotropy_terms", "other_spin_terms", "FIELD_ANISOTROPY_LAMMPS"]
+           "field_anisotropy_terms", "other_spin_terms", "FIELD_ANISOTROPY_LAMMPS", "dmi_film",
+           "neel_skyrmion"]
 
 
 def paper_chain_terms():
@@ -110,3 +113,46 @@ def fcc_cobalt(n=5, temperature_K=100.0, cone_deg=30.0, seed=0, magnitude=1.72, 
         atoms.set_momenta(p)
     atoms.calc = SpinLatticeCalculator([*fcc_cobalt_terms(), *extra], conventions=conventions)
     return atoms
+
+
+def dmi_film(n=16, J=0.010, D=0.003, K=0.001, field=2.0, magnitude=2.2, a=2.5, spins=None):
+    """A square magnetic monolayer of n × n sites (lattice constant ``a`` Å,
+    periodic in-plane; the cell's 10 Å along z is periodic too, beyond every
+    cutoff, so that LAMMPS takes it as it is) with nearest-neighbour exchange
+    J (eV; a Bethe–Slater J(r) = 4 J1 (r/a)² e^{−(r/a)²} with J(a) = J, cut at
+    1.2 a), interfacial DMI D (eV, D_ij = D e_ij × ẑ), uniaxial anisotropy K
+    (eV) along z and a field ``field`` (T) along +z; moments ``magnitude`` μB.
+    Every term maps on LAMMPS SPIN (docs/lammps.md) and on Spirit. The spins
+    are ``spins`` ((n², 3)), default all along +z (the ferromagnet); site
+    (i, j) is atom i + n j. With the defaults (J = 10 meV, D = 3 meV,
+    K = 1 meV, 2 T) the ferromagnet is the ground state and an isolated Néel
+    skyrmion (:func:`neel_skyrmion`, relaxed) a metastable state some 60 meV
+    above it (with a weaker field or anisotropy, skyrmions or spirals can
+    become lower than the ferromagnet on a large film)."""
+    ij = np.array([(i, j) for j in range(n) for i in range(n)], dtype=float)
+    atoms = Atoms(f"Fe{n * n}", positions=np.column_stack([ij * a, np.zeros(n * n)]),
+                  cell=[n * a, n * a, 10.0], pbc=True)
+    set_spins(atoms, np.tile([0.0, 0.0, 1.0], (n * n, 1)) if spins is None else spins,
+              magnitudes=magnitude)
+    rc = 1.2 * a  # nearest neighbours only (the next are at a√2)
+    atoms.calc = SpinLatticeCalculator([
+        Exchange(BetheSlater(J * np.e / 4.0, 0.0, a), rc=rc), DMI(D, [0.0, 0.0, 1.0], rc=rc),
+        UniaxialAnisotropy(K, [0.0, 0.0, 1.0]), Zeeman(field, [0.0, 0.0, 1.0])])
+    return atoms
+
+
+def neel_skyrmion(positions, radius, centre=None, chirality=1):
+    """Unit spins of a Néel skyrmion profile in the xy plane: θ(ρ) = 2 atan(R/ρ)
+    from +z about ``centre`` (default: the middle of the positions' extent,
+    off every site by 0.01 Å so that no spin sits on the core), s = (χ sin θ
+    ρ̂, cos θ): down at the core, up far away, in-plane part radial (χ = +1:
+    outwards, the chirality :func:`dmi_film`'s DMI favours)."""
+    positions = np.asarray(positions, dtype=float)
+    if centre is None:
+        centre = 0.5 * (positions[:, :2].min(axis=0) + positions[:, :2].max(axis=0)) + 0.01
+    d = positions[:, :2] - np.asarray(centre, dtype=float)[:2]
+    rho = np.linalg.norm(d, axis=1)
+    theta = 2.0 * np.arctan2(radius, rho)
+    radial = d / np.where(rho > 0.0, rho, 1.0)[:, None]
+    return np.column_stack([chirality * np.sin(theta)[:, None] * radial, np.cos(theta)])
+

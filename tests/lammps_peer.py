@@ -18,7 +18,10 @@ atom i+1 in LAMMPS.
 from __future__ import annotations
 
 import os
+import re
 import tempfile
+import time
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -27,7 +30,7 @@ from ase import units
 from ase_spin.constants import HBAR_LAMMPS
 
 __all__ = ["lammps_available", "load_lammps", "LammpsSpin", "LammpsLattice", "EV_PER_FM",
-           "LAMMPS_NKTV2P", "lammps_calculator"]
+           "LAMMPS_NKTV2P", "lammps_calculator", "lammps_minimise"]
 
 #: LAMMPS's ħ in eV·ps: its ``fm`` (rad/ps) times this is B = −∂E/∂s in eV.
 EV_PER_FM = HBAR_LAMMPS / (1000.0 * units.fs)
@@ -265,3 +268,54 @@ def lammps_calculator(terms, **kwargs):
     from ase_spin import SpinLatticeCalculator
 
     return SpinLatticeCalculator(terms, conventions="lammps", **kwargs)
+
+
+def lammps_minimise(atoms, style="spin/lbfgs", ftol=1e-6, maxiter=100_000, modify=()):
+    """Minimise the spins of ``atoms`` on a frozen lattice with LAMMPS's
+    ``min_style`` ``style`` (``spin/lbfgs``, ``spin``, ``spin/cg``).
+
+    The scene goes through :func:`ase_spin.write_lammps` (its Hamiltonian as
+    the deck writes it, every term mapped); the deck's integrator and output
+    are replaced by ``min_style style``, ``min_modify norm max`` (the
+    criterion is then max_i |s_i × ħ fm_i| = max_i |s_i × B_i| in eV, as
+    ase_spin's ``fmax``), ``modify`` (more ``min_modify`` commands) and
+    ``minimize 0.0 ftol maxiter 10·maxiter`` (no energy criterion).
+
+    Returns a namespace: ``spins`` (N, 3), ``energy`` (LAMMPS's final energy,
+    eV, from its minimisation statistics), ``iterations`` and
+    ``evaluations`` (its count of force evaluations), ``seconds`` (the wall
+    time of the ``minimize`` command alone), ``criterion`` (its stopping
+    criterion).
+    """
+    import ase_spin
+
+    lammps = load_lammps()
+    with tempfile.TemporaryDirectory() as tmp:
+        files = ase_spin.write_lammps(tmp, atoms, timestep=1.0, lattice="frozen")
+        deck = files.input.read_text().splitlines()
+        end = next(k for k, line in enumerate(deck) if line.startswith("fix integrate"))
+        deck = [line.replace(f"read_data {files.data.name}", f"read_data {files.data}")
+                for line in deck[:end] if line.strip() and not line.startswith("#")]
+        log = os.path.join(tmp, "log.lammps")
+        lmp = lammps.lammps(cmdargs=["-log", log, "-screen", "none", "-nocite"])
+        try:
+            lmp.commands_list(deck)
+            lmp.commands_list(["thermo_style custom step pe", f"thermo {10 * maxiter}",
+                               f"min_style {style}", "min_modify norm max", *modify])
+            t0 = time.perf_counter()
+            lmp.command(f"minimize 0.0 {ftol!r} {int(maxiter)} {10 * int(maxiter)}")
+            seconds = time.perf_counter() - t0
+            n = len(atoms)
+            lmp.commands_list(["compute unit_spins all property/atom spx spy spz",
+                               "run 0 post no"])
+            spins = np.array(lmp.numpy.extract_compute("unit_spins", 1, 2)[:n])
+        finally:
+            lmp.close()
+        text = open(log).read()
+    energy = re.search(r"Energy initial, next-to-last, final =\s*\n\s*(\S+)\s+(\S+)\s+(\S+)",
+                       text)
+    counts = re.search(r"Iterations, force evaluations\s*=\s*(\d+)\s+(\d+)", text)
+    criterion = re.search(r"Stopping criterion\s*=\s*(.*)", text)
+    return SimpleNamespace(spins=spins, energy=float(energy.group(3)),
+                           iterations=int(counts.group(1)), evaluations=int(counts.group(2)),
+                           seconds=seconds, criterion=criterion.group(1).strip())

@@ -54,10 +54,12 @@ def load_spirit():
     """A namespace with Spirit's modules (ImportError if it is not installed)."""
     from types import SimpleNamespace
 
-    from spirit import constants, geometry, parameters, simulation, state, system, version
+    from spirit import (chain, constants, geometry, htst, parameters, simulation, state,
+                        system, version)
 
     return SimpleNamespace(constants=constants, geometry=geometry, parameters=parameters,
-                           simulation=simulation, state=state, system=system, version=version)
+                           simulation=simulation, state=state, system=system, version=version,
+                           chain=chain, htst=htst)
 
 
 def spirit_available():
@@ -287,3 +289,159 @@ def _timed_run(dyn, steps):
     wall = time.perf_counter() - t0
     sweeps = dyn.total_iterations / max(dyn.total_steps, 1) if dyn.total_iterations else np.nan
     return get_spins(dyn.atoms), wall, sweeps
+
+
+def _film_config(shape, boundaries, a, J_meV, D_meV, K_meV, field_T, mu, convergence_meV):
+    """A Spirit input file of a square lattice (sc, ``shape`` cells, one layer
+    when shape[2] = 1) with nearest-neighbour exchange, Néel DMI in the plane,
+    uniaxial anisotropy and a field along z."""
+    text = _config(3, a, J_meV, mu)
+    replace = {
+        "boundary_conditions 1 1 1": "boundary_conditions " + " ".join(
+            str(int(b)) for b in boundaries),
+        "n_basis_cells 3 3 3": "n_basis_cells " + " ".join(str(int(k)) for k in shape),
+        "external_field_magnitude 0.0": f"external_field_magnitude {field_T!r}",
+        "anisotropy_magnitude 0.0": f"anisotropy_magnitude {K_meV!r}",
+        # dm_chirality 2: Spirit's Néel chirality, which is D_ij = D e_ij × ẑ of
+        # ase_spin's DMI(D, ẑ) (the energies agree: tests/test_spirit.py)
+        "n_shells_dmi 0": (f"n_shells_dmi {1 if D_meV else 0}\ndij {D_meV!r}\n"
+                           "dm_chirality 2"),
+        "llg_force_convergence 0": f"llg_force_convergence {convergence_meV!r}",
+    }
+    for old, new in replace.items():
+        if old not in text:
+            raise RuntimeError(f"Spirit config template changed: no {old!r}")
+        text = text.replace(old, new)
+    return text + f"gneb_force_convergence {convergence_meV!r}\ngneb_n_iterations 2000000000\n" \
+        "gneb_n_iterations_log 2000000000\ngneb_output_any 0\n"
+
+
+class SpiritFilm:
+    """A Spirit state of a square lattice of nx × ny × nz spins (lattice
+    constant ``a`` Å; ``periodic``: Spirit's boundary conditions per axis)
+    with nearest-neighbour exchange J, interfacial (Néel) DMI D, uniaxial
+    anisotropy K along z (all meV) and a field (T) along z, moments ``mu`` μB;
+    and the same scene as ASE Atoms (:meth:`atoms`): ase_spin's DMI(D, ẑ) is
+    Spirit's ``dm_chirality 2``, its field term uses Spirit's μB.
+
+    Minimisation (:meth:`minimise`) and the GNEB (:meth:`gneb`) stop when
+    Spirit's largest torque falls below ``convergence`` (meV, Spirit's units:
+    the same max_i |s_i × B_i| as ase_spin's ``fmax`` × 1000). Run where there
+    is no file named ``STOP``; use as a context manager.
+    """
+
+    def __init__(self, shape, periodic=(True, True, False), a=2.5, J_meV=10.0, D_meV=0.0,
+                 K_meV=0.0, field_T=0.0, mu=2.0, convergence_meV=1e-7):
+        self.sp = load_spirit()
+        self.shape = tuple(int(k) for k in shape)
+        self.periodic = tuple(bool(p) for p in periodic)
+        self.a, self.J_meV, self.D_meV = float(a), float(J_meV), float(D_meV)
+        self.K_meV, self.field_T, self.mu = float(K_meV), float(field_T), float(mu)
+        with tempfile.TemporaryDirectory() as work:
+            path = Path(work) / "film.cfg"
+            path.write_text(_film_config(self.shape, self.periodic, self.a, self.J_meV,
+                                         self.D_meV, self.K_meV, self.field_T, self.mu,
+                                         float(convergence_meV)))
+            with _quiet_stdout():
+                self.p = self.sp.state.setup(str(path), quiet=True)
+        self.nos = self.sp.system.get_nos(self.p)
+        self.positions = np.array(self.sp.geometry.get_positions(self.p), dtype=float)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        if self.p is not None:
+            with _quiet_stdout():
+                self.sp.state.delete(self.p)
+            self.p = None
+
+    def atoms(self, spins):
+        """ASE Atoms at Spirit's positions with ``spins`` and this Hamiltonian
+        (exchange as a nearest-neighbour Bethe–Slater J(r) with J(a) = J)."""
+        from ase_spin.terms import DMI, BetheSlater, UniaxialAnisotropy, Zeeman
+
+        cell = np.diag([k * self.a if k > 1 or p else 10.0 * self.a
+                        for k, p in zip(self.shape, self.periodic)])
+        atoms = Atoms(f"Fe{self.nos}", positions=self.positions, cell=cell,
+                      pbc=self.periodic)
+        set_spins(atoms, spins, magnitudes=self.mu)
+        rc = 1.2 * self.a
+        J = self.J_meV * 1e-3
+        terms = [Exchange(BetheSlater(J * np.e / 4.0, 0.0, self.a), rc=rc)]
+        if self.D_meV:
+            terms.append(DMI(self.D_meV * 1e-3, [0.0, 0.0, 1.0], rc=rc))
+        if self.K_meV:
+            terms.append(UniaxialAnisotropy(self.K_meV * 1e-3, [0.0, 0.0, 1.0]))
+        if self.field_T:
+            terms.append(Zeeman(self.field_T, [0.0, 0.0, 1.0], g=1.0,
+                                mu_B=self.sp.constants.mu_B * 1e-3))
+        atoms.calc = SpinLatticeCalculator(terms)
+        return atoms
+
+    # -- one image or a chain of them ---------------------------------------------
+
+    def set_spins(self, spins, image=-1):
+        spins = np.asarray(spins, dtype=float)
+        view = self.sp.system.get_spin_directions(self.p, idx_image=image)
+        view[:] = spins / np.linalg.norm(spins, axis=1)[:, None]
+        self.sp.system.update_data(self.p, idx_image=image)
+
+    def spins(self, image=-1):
+        return np.array(self.sp.system.get_spin_directions(self.p, idx_image=image),
+                        dtype=float)
+
+    def energy_meV(self, image=-1):
+        """Spirit's energy (single precision through its C API)."""
+        self.sp.system.update_data(self.p, idx_image=image)
+        return self.sp.system.get_energy(self.p, idx_image=image)
+
+    def minimise(self, spins, solver="LBFGS_OSO"):
+        """``(spins, seconds)``: Spirit's minimiser (``LBFGS_OSO`` or ``VP``)
+        from ``spins`` to its convergence."""
+        sim = self.sp.simulation
+        self.set_spins(spins)
+        t0 = time.perf_counter()
+        sim.start(self.p, sim.METHOD_LLG, getattr(sim, f"SOLVER_{solver}"))
+        seconds = time.perf_counter() - t0
+        return self.spins(), seconds
+
+    def gneb(self, images, climbing=True, spring=None, iterations=-1):
+        """Spirit's GNEB (VP solver) on the band ``images`` ((M, N, 3) spins, the
+        ends relaxed); with ``climbing`` the highest inner image after a
+        first relaxation climbs. Returns the relaxed images (M, N, 3)."""
+        sp = self.sp
+        images = np.asarray(images, dtype=float)
+        sp.chain.set_length(self.p, len(images))
+        for k, s in enumerate(images):
+            self.set_spins(s, image=k)
+        sp.chain.update_data(self.p)
+        if spring is not None:
+            sp.parameters.gneb.set_spring_force(self.p, spring, 0.0)
+        sim = sp.simulation
+        sim.start(self.p, sim.METHOD_GNEB, sim.SOLVER_VP, n_iterations=iterations)
+        if climbing:
+            E = np.array([self.energy_meV(k) for k in range(len(images))])
+            top = 1 + int(np.argmax(E[1:-1]))
+            sp.parameters.gneb.set_climbing_falling(self.p, sp.parameters.gneb.IMAGE_CLIMBING,
+                                                    idx_image=top)
+            sim.start(self.p, sim.METHOD_GNEB, sim.SOLVER_VP, n_iterations=iterations)
+        return np.array([self.spins(k) for k in range(len(images))])
+
+    def htst(self, minimum, saddle):
+        """Spirit's HTST between spins ``minimum`` and ``saddle`` (each (N, 3),
+        stationary to its 1e-8 meV): ``(prefactor in 1/s, Hessian eigenvalues
+        at the minimum and at the saddle in meV/rad², ascending)``, single
+        precision. Spirit's velocity matrix takes the effective field from its
+        Hessian, −H s, which leaves out a field's linear Zeeman term: with a
+        field its prefactor is not the HTST one (docs/landscapes.md)."""
+        sp = self.sp
+        sp.chain.set_length(self.p, 2)
+        self.set_spins(minimum, image=0)
+        self.set_spins(saddle, image=1)
+        prefactor = sp.htst.calculate(self.p, 0, 1)
+        return (float(prefactor), np.sort(np.array(sp.htst.get_eigenvalues_min(self.p))),
+                np.sort(np.array(sp.htst.get_eigenvalues_sp(self.p))))

@@ -106,3 +106,26 @@ def test_magnons_writes_its_figure_and_the_peaks_lie_on_the_bands(tmp_path):
     resolution = float(re.search(r"resolution ([0-9.]+) meV", done.stdout).group(1))
     worst = float(re.search(r"where resolved: ([0-9.]+) meV", done.stdout).group(1))
     assert worst < resolution
+
+
+def test_skyrmion_barrier_runs_short_and_writes_its_figure(tmp_path):
+    """The short run: the skyrmion relaxes (Q = −1), the band converges, the
+    collapse barrier is positive and its figure is written where asked."""
+    pytest.importorskip("matplotlib")
+    done = run("skyrmion_barrier.py", "--size", "12", "--images", "7", "--out", "b.png",
+               cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert "Q = -1.0000" in done.stdout and "GNEB converged" in done.stdout
+    barrier = float(re.search(r"collapse barrier (\S+) meV", done.stdout).group(1))
+    assert barrier > 1.0
+    assert files_in(tmp_path) == ["b.png"]
+    assert reported(done.stdout, tmp_path) == [tmp_path / "b.png"]
+    # the lattice free: a triangular film, the band relaxed frozen and free
+    done = run("skyrmion_barrier.py", "--lattice", "--size", "12", "--images", "9", "--out",
+               "lattice", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.count("converged in") == 2 and "NOT" not in done.stdout
+    found = re.search(r"lattice frozen (\S+) meV, lattice free (\S+) meV", done.stdout)
+    frozen, free = (float(x) for x in found.groups())
+    assert frozen > 1.0 and abs(free - frozen) < 0.1 * frozen
+    assert files_in(tmp_path) == ["b.png", "lattice", "lattice/skyrmion_barrier.png"]

@@ -297,3 +297,89 @@ def test_spin_lattice_band():
     straight = d[0] + (d[1] - d[0]) * band.reaction_coordinate() / band.reaction_coordinate()[-1]
     assert np.abs(r - straight).max() > 1e-4  # not the linear interpolation: relaxed
     assert band.images[ci].get_distance(0, 1) == pytest.approx(r[ci])
+
+
+def test_htst_macrospin_prefactor_is_the_resonance_frequency():
+    """Stoner–Wohlfarth with the field at 30° (h = 0.25): the HTST prefactor
+    of the escape from the reversed state is ω₀/2π, ω₀ = (g/μħ)·√(E_θθ E_φφ)
+    the resonance frequency at the minimum (the curvatures in the field's plane,
+    E_θθ = 2K cos 2θ + 2Kh cos(θ − ψ), and out of it, E_φφ = 2K cos²θ +
+    2Kh cos(θ − ψ)); the barrier is the band's; k = ν e^{−ΔE/k_BT}."""
+    from ase import units
+
+    from ase_spin.optimize import HTST
+
+    h, psi = 0.25, np.radians(30.0)
+    band = _band(h, psi, images=11)
+    assert band.run(fmax=1e-10, steps=5000)
+    res = HTST(band.images[0], band.images[band.climbing_image]).rate()
+    assert res.zero_modes == (0, 0)
+    assert res.barrier == pytest.approx(band.barrier(), rel=1e-9)
+    assert res.saddle_modes[0] < 0.0 < res.saddle_modes[1]
+    s = get_spins(band.images[0])[0]
+    theta = np.arctan2(s[0], s[2])
+    curvatures = (2 * K * np.cos(2 * theta) + 2 * K * h * np.cos(theta - psi),
+                  2 * K * np.cos(theta) ** 2 + 2 * K * h * np.cos(theta - psi))
+    assert np.sort(res.minimum_modes) == pytest.approx(np.sort(curvatures), rel=1e-8)
+    conv = band.images[0].calc.hamiltonian.conventions
+    omega = np.sqrt(np.prod(curvatures)) * conv.g / MU / conv.hbar  # rad per ASE time
+    assert res.prefactor() == pytest.approx(omega / (2 * np.pi) * units.s, rel=1e-9)
+    T = 20.0
+    assert res.rate(T) == pytest.approx(res.prefactor() * np.exp(-res.barrier / (units.kB * T)),
+                                        rel=1e-12)
+
+
+def test_htst_zero_modes_and_bad_saddles():
+    """The field along the easy axis: the saddle is a circle (a zero mode),
+    which needs its volume; its only stable mode is that zero mode, so the
+    precession carries no flux over the saddle (k = 0: the axial component is
+    conserved). A minimum given as the saddle is refused."""
+    from ase_spin.optimize import HTST
+
+    h = 0.3
+    band = _band(h, images=9)
+    assert band.run(fmax=1e-10, steps=3000)
+    saddle = band.images[band.climbing_image]
+    htst = HTST(band.images[0], saddle)
+    with pytest.raises(ValueError, match="zero modes"):
+        htst.rate()
+    sin_theta = np.sqrt(1 - h**2)
+    res = htst.rate(volumes=(1.0, 2 * np.pi * sin_theta))
+    assert res.zero_modes == (0, 1)
+    assert res.rate(50.0) == 0.0
+    with pytest.raises(ValueError, match="temperature"):
+        res.prefactor()
+    with pytest.raises(ValueError, match="negative curvatures"):
+        HTST(band.images[0], band.images[0]).rate()
+    top = macrospin(h, s=get_spins(saddle)[0])
+    with pytest.raises(ValueError, match="negative curvatures"):
+        HTST(top, saddle).rate(volumes=(1.0, 1.0))
+    off = saddle.copy()
+    off.arrays["initial_magmoms"] = MU * sphere.rotate(get_spins(saddle), [[1e-3, 0.0, 0.0]])
+    with pytest.raises(ValueError, match="saddle's largest torque"):
+        HTST(band.images[0], off).rate(volumes=(1.0, 1.0))
+
+
+def test_dmi_film_holds_a_metastable_skyrmion():
+    """The scene of the comparisons and the example: the ferromagnet is a
+    stationary state; the Néel profile of the chirality the DMI favours (χ = +1
+    has the lower DMI energy) relaxes to a skyrmion (Q = −1) above the
+    ferromagnet."""
+    from ase_spin.analysis import topological_charge
+    from ase_spin.scenes import dmi_film, neel_skyrmion
+
+    n = 12
+    fm = dmi_film(n)
+    assert torque(fm).max() == 0.0 and topological_charge(fm) == 0.0
+    dmi = {}
+    for chi in (1, -1):
+        a = dmi_film(n)
+        ase_spin.set_spins(a, neel_skyrmion(a.positions, 6.25, chirality=chi), magnitudes=2.2)
+        a.get_potential_energy()
+        dmi[chi] = a.calc.results["energy_terms"]["dmi"]
+    assert dmi[1] < 0.0 < dmi[-1]
+    a = dmi_film(n)
+    ase_spin.set_spins(a, neel_skyrmion(a.positions, 6.25), magnitudes=2.2)
+    assert SpinLBFGS(a).run(fmax=1e-9, steps=2000)
+    assert topological_charge(a) == pytest.approx(-1.0, abs=1e-9)
+    assert a.get_potential_energy() > fm.get_potential_energy() + 0.01

@@ -97,3 +97,132 @@ def test_bad_input(scene, start):
         scene.set_spins(start[:10])
     with pytest.raises(ValueError, match="n must be"):
         SpiritHeisenberg(2)
+
+
+# -- energy landscapes: minima and minimum energy paths (issue 40) ------------------
+
+FILM = dict(J_meV=10.0, D_meV=3.0, K_meV=1.0, field_T=2.0, mu=2.2)  # dmi_film's
+
+
+def _largest_torque(atoms):
+    import ase_spin
+
+    B = atoms.calc.get_magnetic_forces(atoms)
+    return np.linalg.norm(np.cross(ase_spin.get_spins(atoms), B), axis=1).max()
+
+
+def test_film_hamiltonian_maps_on_spirit(tmp_path, monkeypatch):
+    """Exchange + Néel DMI + anisotropy + field on a square lattice: the same
+    energy of random spins (Spirit's single-precision value) in both codes, and
+    a clear difference with the other DMI chirality (the check can fail)."""
+    from spirit_peer import SpiritFilm
+
+    monkeypatch.chdir(tmp_path)
+    spins = np.random.default_rng(0).normal(size=(36, 3))
+    spins /= np.linalg.norm(spins, axis=1)[:, None]
+    with SpiritFilm((6, 6, 1), **FILM) as sc:
+        ours = sc.atoms(spins).get_potential_energy() * 1e3
+        sc.set_spins(spins)
+        assert abs(sc.energy_meV() - ours) <= 2e-7 * abs(ours)
+    with SpiritFilm((6, 6, 1), **{**FILM, "D_meV": -3.0}) as sc:
+        sc.set_spins(spins)
+        assert abs(sc.energy_meV() - ours) > 1.0
+
+
+def test_minima_agree_with_spirit(tmp_path, monkeypatch):
+    """Spirit's LBFGS_OSO and SpinLBFGS reach the same minimum: an open 8 × 8
+    film from a cone (the ferromagnet with DMI-canted edges, a stiff minimum)
+    and a periodic 12 × 12 film from a skyrmion profile (the isolated skyrmion,
+    whose translation is a very soft mode: its spins agree only as τ/κ
+    allows)."""
+    import ase_spin
+    from ase_spin.optimize import SpinLBFGS
+    from ase_spin.analysis import topological_charge
+    from ase_spin.scenes import cone, neel_skyrmion
+    from spirit_peer import SpiritFilm
+
+    monkeypatch.chdir(tmp_path)
+    with SpiritFilm((8, 8, 1), (False, False, False), convergence_meV=1e-7, **FILM) as sc:
+        start = cone(64, np.random.default_rng(1), 60.0)
+        theirs = sc.atoms(sc.minimise(start)[0])
+        assert _largest_torque(theirs) < 1e-9  # Spirit's criterion in meV
+        atoms = sc.atoms(start)
+        assert SpinLBFGS(atoms).run(fmax=1e-10)
+        assert abs(atoms.get_potential_energy() - theirs.get_potential_energy()) < 1e-13
+        s = ase_spin.get_spins(atoms)
+        assert np.abs(s - ase_spin.get_spins(theirs)).max() < 1e-6
+        assert s[:, 2].min() < 0.8  # not collinear
+    with SpiritFilm((12, 12, 1), convergence_meV=1e-9, **FILM) as sc:
+        start = neel_skyrmion(sc.positions, 6.25)
+        theirs = sc.atoms(sc.minimise(start)[0])
+        atoms = sc.atoms(start)
+        assert SpinLBFGS(atoms).run(fmax=1e-12, steps=2000)
+        assert abs(atoms.get_potential_energy() - theirs.get_potential_energy()) < 1e-13
+        for a in (atoms, theirs):
+            assert topological_charge(a) == pytest.approx(-1, abs=1e-9)
+        assert np.abs(ase_spin.get_spins(atoms) - ase_spin.get_spins(theirs)).max() < 1e-4
+
+
+def test_skyrmion_collapse_barrier_agrees_with_spirit(tmp_path, monkeypatch):
+    """The collapse of an isolated skyrmion into the ferromagnet (periodic
+    12 × 12 film), from the same geodesic band of 7 images: Spirit's GNEB
+    (VP, climbing image) and ase_spin's GNEB find the same saddle point (energy
+    and spins), so the same barrier; the bands' other images need not agree
+    (the codes space them differently)."""
+    import ase_spin
+    from ase_spin.optimize import GNEB, SpinLBFGS
+    from ase_spin.analysis import topological_charge
+    from ase_spin.scenes import neel_skyrmion
+    from spirit_peer import SpiritFilm
+
+    monkeypatch.chdir(tmp_path)
+    n = 12
+    with SpiritFilm((n, n, 1), convergence_meV=1e-5, **FILM) as sc:
+        skyrmion = sc.atoms(neel_skyrmion(sc.positions, 6.25))
+        assert SpinLBFGS(skyrmion).run(fmax=1e-10)
+        assert topological_charge(skyrmion) == pytest.approx(-1)
+        ferromagnet = sc.atoms(np.tile([0.0, 0.0, 1.0], (n * n, 1)))
+        band = GNEB([skyrmion] + [skyrmion.copy() for _ in range(5)] + [ferromagnet],
+                    climb=True)
+        band.interpolate()
+        start = band.S.copy()
+        assert band.run(fmax=1e-8, steps=3000)
+        theirs = sc.gneb(start, climbing=True)
+    E = np.array([sc.atoms(s).get_potential_energy() for s in theirs])
+    top = int(np.argmax(E))
+    ci = band.climbing_image
+    assert 0 < top < len(E) - 1
+    assert abs(E[top] - band.energies[ci]) < 1e-11
+    assert np.abs(theirs[top] - band.S[ci]).max() < 1e-4
+    assert band.barrier() == pytest.approx(E[top] - E[0], abs=1e-11)
+    assert band.barrier() > 5e-3  # a real barrier (eV), not a flat path
+
+
+def test_htst_prefactor_agrees_with_spirit(tmp_path, monkeypatch):
+    """Harmonic transition-state theory for the reversal of an open chain of
+    four spins (exchange, DMI, anisotropy; no field, where Spirit's velocity
+    matrix is complete): the Hessians' eigenvalues at the minimum and the
+    saddle and the prefactor agree with Spirit's HTST to its single
+    precision."""
+    import ase_spin
+    from ase_spin.optimize import GNEB, HTST, SpinLBFGS
+    from spirit_peer import SpiritFilm
+
+    monkeypatch.chdir(tmp_path)
+    with SpiritFilm((4, 1, 1), (False, False, False), **{**FILM, "field_T": 0.0}) as sc:
+        ends = []
+        for sz in (-1.0, 1.0):
+            a = sc.atoms(np.tile([0.05, 0.02, sz], (4, 1)))
+            assert SpinLBFGS(a).run(fmax=1e-13, steps=5000)
+            ends.append(a)
+        band = GNEB([ends[0]] + [ends[0].copy() for _ in range(5)] + [ends[1]], climb=True)
+        band.interpolate()
+        assert band.run(fmax=1e-13, steps=20000)
+        saddle = band.images[band.climbing_image]
+        ours = HTST(ends[0], saddle).rate()
+        prefactor, modes_min, modes_sp = sc.htst(ase_spin.get_spins(ends[0]),
+                                                 ase_spin.get_spins(saddle))
+    assert ours.zero_modes == (0, 0)
+    assert np.abs(ours.minimum_modes * 1e3 - modes_min).max() < 1e-6 * modes_min.max()
+    assert np.abs(ours.saddle_modes * 1e3 - modes_sp).max() < 1e-6 * modes_sp.max()
+    assert ours.prefactor() == pytest.approx(prefactor, rel=1e-6)

@@ -8,9 +8,10 @@ from . import sphere
 from .base import SpinOptimizer
 from .filter import SpinLatticeFilter
 from .gneb import GNEB
+from .htst import HTST, HTSTResult
 from .lbfgs import SpinLBFGS
 from .path import hermite_path, path_maximum
 from .vp import SpinVP
 
-__all__ = ["SpinOptimizer", "SpinLBFGS", "SpinVP", "SpinLatticeFilter", "GNEB", "relax_spins",
-           "sphere", "hermite_path", "path_maximum"]
+__all__ = ["SpinOptimizer", "SpinLBFGS", "SpinVP", "SpinLatticeFilter", "GNEB", "HTST",
+           "HTSTResult", "relax_spins", "sphere", "hermite_path", "path_maximum"]

@@ -157,7 +157,7 @@ class GNEB:
             big, small = max(abs(up), abs(down)), min(abs(up), abs(down))
             t = plus * big + minus * small if E[nu + 1] > E[nu - 1] else \
                 plus * small + minus * big
-        norm = np.sqrt(np.vdot(t, t))
+        norm = np.sqrt(sphere.inner(t, t))
         return t / norm if norm > 0.0 else t
 
     # -- energies and forces --------------------------------------------------
@@ -204,7 +204,7 @@ class GNEB:
         for nu in range(1, M - 1):
             t = self._tangent(nu)
             f = self.F[nu]
-            along = np.vdot(f, t)
+            along = sphere.inner(f, t)
             if nu == ci:
                 g = f - 2.0 * along * t
             else:
@@ -286,10 +286,10 @@ class GNEB:
         M = len(self.images)
         first = self._difference(0, 1, 0)
         last = self._difference(M - 2, M - 1, M - 1)
-        ends = [first / (np.sqrt(np.vdot(first, first)) or 1.0),
-                last / (np.sqrt(np.vdot(last, last)) or 1.0)]
+        ends = [first / (np.sqrt(sphere.inner(first, first)) or 1.0),
+                last / (np.sqrt(sphere.inner(last, last)) or 1.0)]
         t = [ends[0], *tangents, ends[1]]
-        return np.array([-np.vdot(self.F[nu], t[nu]) for nu in range(M)])
+        return np.array([-sphere.inner(self.F[nu], t[nu]) for nu in range(M)])
 
     def path(self, points=20):
         """(R, E): the energy along the path, the cubic Hermite interpolation

@@ -20,8 +20,11 @@ pairs need no transport (the OSO construction). The first step, and every
 step after the memory is reset, is θ = −g/max_i|B_i|: a spin in a field B
 has the curvature |B| about its minimum, so this is a Newton step for the
 stiffest spin. The memory is reset when the direction is not a descent
-direction or the energy rose in the last step; a pair whose curvature
-Δθ·Δg is not positive is not kept. One evaluation of E and B per step.
+direction or the energy rose in the last step by more than its round-off
+(:data:`ENERGY_NOISE` relative to |E| + Σ_i|B_i|: near the minimum the true
+changes, of order τ²/|B|, fall below the round-off of E, whose noise must not
+reset the memory); a pair whose curvature Δθ·Δg is not positive is not kept.
+One evaluation of E and B per step.
 """
 
 from __future__ import annotations
@@ -34,7 +37,11 @@ from ..validate import integer
 from . import sphere
 from .base import SpinOptimizer
 
-__all__ = ["SpinLBFGS"]
+__all__ = ["SpinLBFGS", "ENERGY_NOISE"]
+
+#: a rise of E smaller than this times |E| + Σ_i|B_i| (eV) is round-off, not a
+#: failed step
+ENERGY_NOISE = 1e-12
 
 
 class SpinLBFGS(SpinOptimizer):
@@ -61,13 +68,13 @@ class SpinLBFGS(SpinOptimizer):
         q = g.copy()
         alphas = []
         for d, y, rho in reversed(self.pairs):
-            a = rho * np.vdot(d, q)
+            a = rho * sphere.inner(d, q)
             q -= a * y
             alphas.append(a)
         d, y, _ = self.pairs[-1]
-        q *= np.vdot(d, y) / np.vdot(y, y)
+        q *= sphere.inner(d, y) / sphere.inner(y, y)
         for (d, y, rho), a in zip(self.pairs, reversed(alphas)):
-            b = rho * np.vdot(y, q)
+            b = rho * sphere.inner(y, q)
             q += (a - b) * d
         return -q
 
@@ -75,7 +82,7 @@ class SpinLBFGS(SpinOptimizer):
         s, free = self.s, self.free
         g = -self.forces()
         theta = self._direction(g) if self.pairs else None
-        if theta is None or not np.vdot(theta, g) < 0.0:
+        if theta is None or not sphere.inner(theta, g) < 0.0:
             self.reset()
             stiffest = sphere.norms(self.B[free]).max() if free.any() else 1.0
             theta = -g / (stiffest if stiffest > 0.0 else 1.0)
@@ -90,8 +97,9 @@ class SpinLBFGS(SpinOptimizer):
         before = self.energy
         self._accept(s_new, energy, B)
         y = -self.forces() - g
-        curvature = np.vdot(theta, y)
-        if energy > before:
+        curvature = sphere.inner(theta, y)
+        noise = ENERGY_NOISE * (abs(before) + float(sphere.norms(B[free]).sum()))
+        if energy > before + noise:
             self.reset()
         elif curvature > 0.0:
             self.pairs.append((theta, y, 1.0 / curvature))

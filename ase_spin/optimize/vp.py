@@ -38,8 +38,8 @@ VP_STEP = 0.5
 def project_velocity(v, F):
     """The velocity v projected on the force F (both arrays of any shape, dot
     products over all their elements): (v·F/F·F) F if v·F > 0, else 0."""
-    vf = np.vdot(v, F)
-    ff = np.vdot(F, F)
+    vf = sphere.inner(v, F)
+    ff = sphere.inner(F, F)
     if vf > 0.0 and ff > 0.0:
         return (vf / ff) * F
     return np.zeros_like(F)
