@@ -18,6 +18,7 @@ from .parameters import Parameterised
 from .skeletons import compile_pair_pass, compile_site_pass
 
 __all__ = ["Want", "Term", "SpinTerm", "SpinOperator", "PairSpinTerm", "PairOperator", "System",
+           "mean_buffer",
            "Species", "SingleSiteTerm", "SiteOperator", "numeric_self_curvature"]
 
 
@@ -293,6 +294,22 @@ class SiteOperator(SpinOperator):
 
 #: the angle (rad) of the central differences of :meth:`SiteOperator.self_curvature`
 _TURN = 1e-4
+
+
+def mean_buffer(mean_with, pairs, kept=None, shape=None):
+    """The midpoint array a pair term's ``prepare`` fills: None without
+    ``mean_with``; else ``kept`` (the array of the operator being refilled,
+    if it has one) or a new array of ``shape`` (or None when ``shape`` is
+    None: the term averages without an array of its own). ``mean_with`` must
+    be prepared on the same pair list: the midpoint data are averages of the
+    step's two ends pair by pair (for a pair term, x̄_k = ½[x_k(q) + x_k(q̃)])."""
+    if mean_with is None:
+        return None
+    if mean_with.pairs is not pairs:
+        raise ValueError("mean_with must be an operator on the same pair list")
+    if kept is not None or shape is None:
+        return kept
+    return np.empty(shape)
 
 
 def numeric_self_curvature(op, W):

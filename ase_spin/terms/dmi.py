@@ -8,7 +8,7 @@ import numpy as np
 from .._jit.threads import threaded
 from ..neighbors import separation
 from ..validate import MAX_COUPLING, length, real_scalar, unit_vector, warn_implausible
-from .base import PairSpinTerm
+from .base import PairSpinTerm, mean_buffer
 from .lammps_form import LammpsPair, number_text, vector_text
 from .parameters import is_pair_mapping, pair_values, resolve_pairs
 
@@ -257,14 +257,8 @@ class DMI(PairSpinTerm):
             Ubar = out.mean_data[0] if out.mean_data is not None else None
         else:
             U, E, R, Ubar = np.empty((n, 3)), np.empty((n, 3)), np.empty(n), None
-        if mean_with is not None:
-            if mean_with.pairs is not pairs:
-                raise ValueError("mean_with must be an operator on the same pair list")
-            if Ubar is None:
-                Ubar = np.empty((n, 3))
-            other = mean_with.data[0]
-        else:
-            other, Ubar = _NO_U, None
+        Ubar = mean_buffer(mean_with, pairs, Ubar, (n, 3))
+        other = mean_with.data[0] if mean_with is not None else _NO_U
         _geometry(positions, pairs.row, pairs.j, pairs.image, pairs.images, types, rc2, Dtab,
                   U, E, R, other, Ubar if Ubar is not None else _NO_U)
         data = (U, E, R, types, Dtab)

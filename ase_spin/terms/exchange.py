@@ -13,7 +13,7 @@ import numpy as np
 
 from .._jit import threads
 from ..validate import flag, length
-from .base import SpinOperator, SpinTerm, Want
+from .base import SpinOperator, SpinTerm, Want, mean_buffer
 from .couplings import (FORM, FORM_OFF, FORM_PYTHON, P0, RC2, BetheSlater, Coupling, Cubic,
                         check_coupling, checked_values)
 from .exchange_fused import (exchange_add_kept, exchange_couplings, exchange_forces,
@@ -383,14 +383,11 @@ class Exchange(SpinTerm):
         table, couplings = bound
         pairs = op.pairs
         n = len(pairs)
+        kept = op.Jbar if op.Jbar is not None and len(op.Jbar) == n else None
+        op.Jbar = mean_buffer(mean_with, pairs, kept, n)
         if mean_with is not None:
-            if mean_with.pairs is not pairs:
-                raise ValueError("mean_with must be an operator on the same pair list")
-            if op.Jbar is None or len(op.Jbar) != n:
-                op.Jbar = np.empty(n)
             other, Jbar = mean_with.J, op.Jbar
         else:
-            op.Jbar = None
             other = Jbar = _NO_EX
         if couplings is None:
             if table.shape[0] == 1:

@@ -8,7 +8,7 @@ import numba as nb
 import numpy as np
 
 from ..validate import length
-from .base import PairOperator, PairSpinTerm, numeric_self_curvature
+from .base import PairOperator, PairSpinTerm, mean_buffer, numeric_self_curvature
 from .couplings import BetheSlater, check_coupling, checked_values
 from .lammps_form import LammpsPair, number_text
 from .parameters import pair_values, resolve_pairs
@@ -200,10 +200,8 @@ class Neel(PairSpinTerm):
         G = gv + 12.0 / 35.0 * qv
         Q1, Q2 = 1.8 * qv, -0.4 * qv
         data = (E, G, Q1, Q2, dg, dq, R)
-        mean_data = None
-        if mean_with is not None:
-            if mean_with.pairs is not pairs:
-                raise ValueError("mean_with must be an operator on the same pair list")
-            mean_data = mean_with.data  # NeelOperator.field averages the two fields
+        # NeelOperator.field averages the two ends' fields: the other end's data
+        mean_buffer(mean_with, pairs)
+        mean_data = mean_with.data if mean_with is not None else None
         return NeelOperator(pairs, data, mean_data, self._compiled_pass(),
                             type(self).pair_site)

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..neighbors import separation
 from ..validate import MAX_COUPLING, length, real_array, warn_implausible, warn_user
-from .base import PairOperator, PairSpinTerm, numeric_self_curvature
+from .base import PairOperator, PairSpinTerm, mean_buffer, numeric_self_curvature
 from .couplings import check_coupling, checked_values
 
 __all__ = ["PairCouplings", "merge_directions", "pairs_within", "coupling_matrices",
@@ -572,14 +572,8 @@ class PairCouplings(PairSpinTerm):
             Cbar = out.mean_data[0] if out.mean_data is not None else None
         else:
             C, P, Dv, Cbar = np.empty((n, 9)), np.empty(n), np.empty((n, 3)), None
-        if mean_with is not None:
-            if mean_with.pairs is not pairs:
-                raise ValueError("mean_with must be an operator on the same pair list")
-            if Cbar is None:
-                Cbar = np.empty((n, 9))
-            other = mean_with.data[0]
-        else:
-            other, Cbar = _NO_C, None
+        Cbar = mean_buffer(mean_with, pairs, Cbar, (n, 9))
+        other = mean_with.data[0] if mean_with is not None else _NO_C
         law, phi, dphi = LAW_FIXED, _NO_R, _NO_R
         if self.decay is not None:
             law = LAW_EXPONENTIAL
