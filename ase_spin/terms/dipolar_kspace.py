@@ -7,7 +7,10 @@ from __future__ import annotations
 
 import math
 
+import numba as nb
 import numpy as np
+
+from .._jit.threads import all_threads, threaded
 
 __all__ = ["Reciprocal", "SlabCorrection", "ewald_error_bound", "ewald_parameters",
            "kvectors", "slab_geometry"]
@@ -49,6 +52,89 @@ def kvectors(cell, kcut):
     return np.ascontiguousarray(k[np.einsum("ij,ij->i", k, k) <= kcut * kcut])
 
 
+_NO_ROWS = np.zeros((0, 3))
+
+
+@threaded(always=True)
+def phases(nthreads, positions, k, c, s):
+    """c = cos(k·r_j), s = sin(k·r_j) per atom j and k-vector."""
+    N = positions.shape[0]
+    for t in nb.prange(nthreads):
+        for j in range(t * N // nthreads, (t + 1) * N // nthreads):
+            x = positions[j, 0]
+            y = positions[j, 1]
+            z = positions[j, 2]
+            for q in range(k.shape[0]):
+                p = x * k[q, 0] + y * k[q, 1] + z * k[q, 2]
+                c[j, q] = math.cos(p)
+                s[j, q] = math.sin(p)
+
+
+@threaded(always=True)
+def structure_factors(nthreads, m, k, c, s, Sc, Ss):
+    """Sc + i Ss = S(k) = Σ_j (m_j·k)[cos(k·r_j) + i sin(k·r_j)] for every k,
+    each thread over its own range of k (no reduction between threads), the
+    atoms in the outer loop so that the rows of c and s are read in order."""
+    K = k.shape[0]
+    for t in nb.prange(nthreads):
+        lo = t * K // nthreads
+        hi = (t + 1) * K // nthreads
+        for q in range(lo, hi):
+            Sc[q] = 0.0
+            Ss[q] = 0.0
+        for j in range(m.shape[0]):
+            mx = m[j, 0]
+            my = m[j, 1]
+            mz = m[j, 2]
+            for q in range(lo, hi):
+                v = mx * k[q, 0] + my * k[q, 1] + mz * k[q, 2]
+                Sc[q] += v * c[j, q]
+                Ss[q] += v * s[j, q]
+
+
+@threaded(always=True)
+def reciprocal_rows(nthreads, m, k, c, s, ASc, ASs, coef, H, F, want_h, want_f):
+    """Per atom i, with ASc + i ASs = A(k) S(k) and coef = 8π/V:
+
+    H_i −= coef Σ_k k [cos(k·r_i) ASc + sin(k·r_i) ASs]            (the field),
+    F_i += coef Σ_k k (m_i·k)[sin(k·r_i) ASc − cos(k·r_i) ASs]     (the forces)."""
+    N = c.shape[0]
+    K = k.shape[0]
+    for t in nb.prange(nthreads):
+        for i in range(t * N // nthreads, (t + 1) * N // nthreads):
+            hx = 0.0
+            hy = 0.0
+            hz = 0.0
+            fx = 0.0
+            fy = 0.0
+            fz = 0.0
+            mx = m[i, 0]
+            my = m[i, 1]
+            mz = m[i, 2]
+            for q in range(K):
+                kx = k[q, 0]
+                ky = k[q, 1]
+                kz = k[q, 2]
+                if want_h:
+                    w = c[i, q] * ASc[q] + s[i, q] * ASs[q]
+                    hx += w * kx
+                    hy += w * ky
+                    hz += w * kz
+                if want_f:
+                    w = (mx * kx + my * ky + mz * kz) * (s[i, q] * ASc[q] - c[i, q] * ASs[q])
+                    fx += w * kx
+                    fy += w * ky
+                    fz += w * kz
+            if want_h:
+                H[i, 0] -= coef * hx
+                H[i, 1] -= coef * hy
+                H[i, 2] -= coef * hz
+            if want_f:
+                F[i, 0] += coef * fx
+                F[i, 1] += coef * fy
+                F[i, 2] += coef * fz
+
+
 class Reciprocal:
     r"""The reciprocal-space part of the Ewald sum at given positions, over the
     half k-space (each ±k once, hence the factor 2 of the full sum):
@@ -63,37 +149,37 @@ class Reciprocal:
     def __init__(self, positions, k, A, volume, alpha):
         self.k = k
         self.A = A
-        phase = positions @ k.T
-        self.c = np.cos(phase)
-        self.s = np.sin(phase)
+        self.c = np.empty((len(positions), len(k)))
+        self.s = np.empty((len(positions), len(k)))
+        phases(all_threads(), np.ascontiguousarray(positions, dtype=float), k, self.c, self.s)
         self.pref = 4.0 * math.pi / volume
         self.alpha = alpha
 
     def _sums(self, m):
-        mk = m @ self.k.T
-        return mk, np.einsum("ik,ik->k", mk, self.c), np.einsum("ik,ik->k", mk, self.s)
+        """(Re S, Im S) per k."""
+        Sc = np.empty(len(self.k))
+        Ss = np.empty(len(self.k))
+        structure_factors(all_threads(), m, self.k, self.c, self.s, Sc, Ss)
+        return Sc, Ss
 
     def field(self, m, H):
         """H_i += −∂E_k/∂m_i = −(8π/V) Σ_k A k [cos(k·r_i) Re S + sin(k·r_i) Im S]."""
-        _, Sc, Ss = self._sums(m)
-        self._add_field(Sc, Ss, H)
-
-    def _add_field(self, Sc, Ss, H):
-        H -= (2.0 * self.pref) * ((self.c * (self.A * Sc) + self.s * (self.A * Ss)) @ self.k)
+        Sc, Ss = self._sums(m)
+        reciprocal_rows(all_threads(), m, self.k, self.c, self.s, self.A * Sc, self.A * Ss,
+                        2.0 * self.pref, H, H, True, False)
 
     def add(self, m, H, F, want_h, want_f, want_v):
         """E_k, and where wanted: the field (as :meth:`field`), the forces
         F_i = (8π/V) Σ_k A k (m_i·k)[sin(k·r_i) Re S − cos(k·r_i) Im S] and the
         virial ∂E_k/∂ε_ab = −δ_ab E_k + (4π/V) Σ_k A [2 (1/k² + 1/4α²) k_a k_b
         |S|² − k_a Re(S* T_b) − k_b Re(S* T_a)], T(k) = Σ_j m_j e^{ik·r_j}."""
-        mk, Sc, Ss = self._sums(m)
+        Sc, Ss = self._sums(m)
         AS2 = self.A * (Sc * Sc + Ss * Ss)
         energy = self.pref * AS2.sum()
-        if want_h:
-            self._add_field(Sc, Ss, H)
-        if want_f:
-            im = self.s * (self.A * Sc) - self.c * (self.A * Ss)
-            F += (2.0 * self.pref) * ((mk * im) @ self.k)
+        if want_h or want_f:
+            reciprocal_rows(all_threads(), m, self.k, self.c, self.s, self.A * Sc,
+                            self.A * Ss, 2.0 * self.pref, H if want_h else _NO_ROWS,
+                            F if want_f else _NO_ROWS, want_h, want_f)
         virial = np.zeros(6)
         if want_v:
             k = self.k
