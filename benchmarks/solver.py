@@ -1,6 +1,6 @@
 """Midpoint solvers of CollectivePRK against the step size: sweeps, failures, step time.
 
-    python benchmarks/solver.py                 # the tables of docs/benchmarks.md
+    python benchmarks/solver.py                 # the largest step of docs/benchmarks.md
     python benchmarks/solver.py --quick         # a smoke run (few steps, few dt)
 
 For fcc Co (ase_spin.scenes.fcc_cobalt, 100 K, spins in a 30° cone) at each dt

@@ -738,7 +738,7 @@ def falls_at_order_above(b1, se1, b2, se2, order):
 def test_weak_second_order_single_spin():
     """Stationary bias of ⟨s·ĥ⟩ (x = 2) at ωh = 2.4 and 1.2 (large steps, so
     that the bias is resolved: ~4 % of ⟨s·ĥ⟩ at 2.4): it falls by more than
-    2^1.5 (measured ≈ 7, docs/benchmarks.md); with the noise variance of a
+    2^1.5 (measured ≈ 7, docs/thermostats.md); with the noise variance of a
     first-order step, σ² = 2Dτ, the same check fails. Standard errors from
     1024 independent spins, 1500 steps each."""
     b1, se1 = stationary_bias(2.4)
@@ -756,7 +756,7 @@ def test_weak_second_order_single_spin():
 def test_weak_second_order_interacting_pairs():
     """Exchange-coupled pairs in a field (x = 1, J/k_B T = 2): the stationary
     bias of ⟨s₁·s₂⟩ at ωh = 1.6 and 0.8 falls by more than 2^1.5 (measured
-    3.9, docs/benchmarks.md; the damping about the fields frozen at the
+    3.9, docs/thermostats.md; the damping about the fields frozen at the
     bath's start alone gives 2.6 and a ⟨s·ĥ⟩ bias that grows)."""
     b1, se1 = stationary_bias(1.6, per=2048, steps=2000, dimer_j=2.0, x=1.0)
     b2, se2 = stationary_bias(0.8, per=2048, steps=2000, dimer_j=2.0, x=1.0)
@@ -961,7 +961,7 @@ def test_pairs_sampled_with_the_end_field_from_the_midpoint(monkeypatch):
     fields (Langevin._closing_bath). ⟨s₁·s₂⟩ (exact: coth j − 1/j, j = J/k_B T
     = 2) and ⟨s₁·ẑ⟩ (0) have the biases of the same run with that field from a
     pass over the pairs, within Z standard errors, at ωh = 0.4 (where the
-    scheme's own bias in ⟨s₁·s₂⟩ is −0.007: docs/benchmarks.md); 1024 pairs,
+    scheme's own bias in ⟨s₁·s₂⟩ is −0.007: docs/thermostats.md); 1024 pairs,
     3000 steps."""
     b, se = stationary_bias(0.4, per=1024, steps=3000, dimer_j=2.0, x=0.0, interval=4)
     monkeypatch.setattr(Langevin, "_end_field_from_midpoint", False)

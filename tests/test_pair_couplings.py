@@ -17,8 +17,9 @@ from scipy.spatial.transform import Rotation
 
 import ase_spin
 from ase_spin import (DMI, BetheSlater, CollectivePRK, Exchange, Hamiltonian, Langevin, Neel,
-                      PairCouplings, SpinLatticeCalculator, SuzukiTrotter, Want, read_pairs,
-                      read_tb2j, read_tb2j_pairs, relax_spins, write_lammps, write_pairs)
+                      PairCouplings, SpinLatticeCalculator, SpinLBFGS, SuzukiTrotter, Want,
+                      neighbor_shells, read_pairs, read_tb2j, read_tb2j_pairs, relax_spins,
+                      write_lammps, write_pairs)
 from ase_spin.terms.pair_couplings import coupling_matrices, pairs_within
 
 from conftest import CO_BS, random_spins
@@ -438,3 +439,144 @@ def test_coupling_matrices_convention():
     term, _ = _full_couplings(ref)
     again = PairCouplings.from_matrices(ref, term.i, term.j, term.R, term.matrices())
     np.testing.assert_allclose(again.matrices(), term.matrices(), atol=1e-17)
+
+
+# -- hexagonal Co: the easy axis from anisotropic exchange ------------------
+
+#: hcp Co as ase.build.bulk gives it (a = 2.51 Å, c/a = 1.622), and the ideal c/a
+CO_A, CO_C = bulk("Co", "hcp").cell.cellpar()[[0, 2]]
+IDEAL_CA = np.sqrt(8.0 / 3.0)
+#: a cut-off (in units of a) between hcp's nearest neighbours (a, and
+#: √(a²/3 + c²/4) ≤ 1.05 a for c/a ≤ 1.75) and the next (√(4a²/3 + c²/4) ≥
+#: 1.37 a, c ≥ 1.5 a for c/a ≥ 1.5)
+_NEAREST_CUT = 1.2
+
+
+def _hcp_co(ca, gamma0, J=0.01, out_of_plane=1.0):
+    """hcp Co with c = ca·a and, on its 12 nearest neighbours, J and the
+    pseudo-dipolar Γ_ij = γ(r)(3ê_ij ê_ijᵀ − 1), γ(r) = γ₀(a/r)³, times
+    ``out_of_plane`` on the bonds out of the basal plane. Returns (term,
+    reference, the γ of the in-plane and the out-of-plane bonds, d)."""
+    ref = bulk("Co", "hcp", a=CO_A, c=ca * CO_A)
+    i, j, R, r = pairs_within(ref, _NEAREST_CUT * CO_A)
+    assert len(i) == 12   # two sites, 12 neighbours each, each pair once
+    e = (ref.positions[j] + R @ ref.cell.array - ref.positions[i]) / r[:, None]
+    gamma = gamma0 * (CO_A / r) ** 3 * np.where(np.abs(e[:, 2]) > 1e-9, out_of_plane, 1.0)
+    Gamma = gamma[:, None, None] * (3.0 * e[:, :, None] * e[:, None, :] - np.eye(3))
+    d = np.sqrt(CO_A**2 / 3 + (ca * CO_A) ** 2 / 4)
+    term = PairCouplings(ref, i, j, R, np.full(12, J), Gamma=Gamma)
+    return term, ref, gamma0, gamma0 * (CO_A / d) ** 3 * out_of_plane, d
+
+
+def _uniform(theta, phi, n):
+    return np.tile([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)],
+                   (n, 1))
+
+
+@pytest.mark.parametrize("ca, out_of_plane", [(CO_C / CO_A, 1.0), (IDEAL_CA, 1.0),
+                                              (IDEAL_CA, 1.5)])
+def test_hcp_co_uniform_energy_is_the_lattice_sum(ca, out_of_plane):
+    r"""hcp Co with pseudo-dipolar anisotropic exchange on the 12 nearest
+    neighbours: the energy of every uniform state is the analytic lattice sum
+    E/N = E₀ + K_eff sin²θ (θ from c), whatever the in-plane angle φ.
+
+    Construction (chosen, not derived): Γ_ij = γ(r)(3ê_ij ê_ijᵀ − 1), γ(r) =
+    γ₀(a/r)³ — the angular form and distance law of the dipole–dipole
+    coupling, the form of van Vleck's pseudo-dipolar exchange — and one J on
+    all 12 bonds. Γ is a function of the bond vector alone, so it turns with
+    every rotation of the crystal: it is consistent with P6₃/mmc as long as
+    γ is one number per symmetry orbit of bonds (checked: neighbor_shells's
+    orbits are the 6 in-plane and the 6 out-of-plane bonds). It is one
+    tensor hcp allows, not the most general one.
+
+    Physics (the lattice sum): for s = (sinθ cosφ, sinθ sinφ, cosθ) on every
+    atom, E/N = −½ Σ_j sᵀ𝒥_0j s over an atom's 12 neighbours: 6 in the plane
+    (length a, γ_a; Σ êêᵀ = 3 diag(1, 1, 0)) and 6 out of it (length d =
+    √(a²/3 + c²/4), γ_d; Σ êêᵀ = diag(a², a², 3c²/2)/d²), so
+
+        E/N = −6J − ½[γ_a(9 sin²θ − 6) + γ_d(3a² sin²θ/d² + 9c² cos²θ/(2d²) − 6)],
+        K_eff = (3/2)[γ_d (3c²/2 − a²)/d² − 3γ_a].
+
+    No φ at all: the energy of a uniform state under bilinear couplings is a
+    quadratic form sᵀTs, and the 6-fold axis makes T uniaxial (hcp's in-plane
+    anisotropy, sixth order, cannot come from pairs in a uniform state).
+    The 12 bonds' Σ êêᵀ has t_zz − t_xx = (3c²/4 − 2a²)/d², zero at c/a =
+    √(8/3) only (checked over a range of c/a): there, with γ_d = γ_a (the law
+    γ(r) gives it, d = a; symmetry does not: the two orbits stay distinct),
+    K_eff = 0; with γ_d = 1.5 γ_a, K_eff = 9(γ_d − γ_a)/2 ≠ 0."""
+    gamma0, J = 1e-3, 0.01
+    term, ref, ga, gd, d = _hcp_co(ca, gamma0, J, out_of_plane)
+    a, c = CO_A, ca * CO_A
+    keff = 1.5 * (gd * (1.5 * c**2 - a**2) / d**2 - 3 * ga)
+    sup = _spun(ref.repeat((2, 2, 2)))
+    ev = _bound(term, sup)
+    worst = 0.0
+    for theta in np.linspace(0.0, np.pi, 7):
+        s2 = np.sin(theta) ** 2
+        lattice_sum = -6 * J - 0.5 * (ga * (9 * s2 - 6) + gd * (
+            3 * a**2 * s2 / d**2 + 4.5 * c**2 * (1 - s2) / d**2 - 6))
+        e0 = -6 * J - 0.5 * (-6 * ga + gd * (4.5 * c**2 / d**2 - 6))
+        assert lattice_sum == pytest.approx(e0 + keff * s2, rel=1e-14)
+        for phi in (0.0, 0.4, 1.3, 2.9):
+            e = ev.evaluate(sup.positions, _uniform(theta, phi, len(sup)),
+                            Want(energy=True)).energy / len(sup)
+            worst = max(worst, abs(e - lattice_sum))
+    assert worst < 1e-14 * 6 * J
+    ideal = abs(ca - IDEAL_CA) < 1e-12
+    if ideal and out_of_plane == 1.0:
+        assert abs(keff) < 1e-18
+    else:
+        assert abs(keff) > 1e-6
+    # what makes the ideal c/a special: the second moment of the 12 bonds
+    for x in np.r_[np.linspace(1.5, 1.75, 6), IDEAL_CA]:
+        cell = bulk("Co", "hcp", a=CO_A, c=x * CO_A)
+        i, j, R, r = pairs_within(cell, _NEAREST_CUT * CO_A)
+        e = (cell.positions[j] + R @ cell.cell.array - cell.positions[i]) / r[:, None]
+        T = 2.0 / len(cell) * np.einsum("ni,nj->ij", e, e)   # Σ_j êêᵀ of one atom
+        dd = CO_A**2 / 3 + (x * CO_A) ** 2 / 4
+        assert np.trace(T) == pytest.approx(12.0)
+        np.testing.assert_allclose(T - np.diag(np.diag(T)), 0.0, atol=1e-14)
+        assert T[2, 2] - T[0, 0] == pytest.approx((0.75 * x**2 - 2) * CO_A**2 / dd, abs=1e-13)
+        assert (np.abs(T - 4 * np.eye(3)).max() < 1e-13) == (x == IDEAL_CA)
+    # the construction's γ is one number per symmetry orbit of bonds
+    ase_spin.set_spins(ref, [0.0, 0.0, 1.0])
+    shells = neighbor_shells(ref, _NEAREST_CUT * CO_A)
+    for shell in shells:
+        n = shell.pairs[:, 2:]
+        bond = ref.positions[shell.pairs[:, 1]] + n @ ref.cell.array - ref.positions[shell.site]
+        assert len(set(np.abs(bond[:, 2]) > 1e-9)) == 1, shell.label
+    assert sorted(s.multiplicity for s in shells) == [6, 6]
+
+
+def test_hcp_co_anisotropic_exchange_gives_the_easy_axis():
+    """With the sign chosen for Co, the relaxed state of hcp Co (its own c/a)
+    lies along c; with the other sign, in the basal plane; at the ideal c/a a
+    tilted uniform state feels no torque.
+
+    Construction: the couplings of test_hcp_co_uniform_energy_is_the_lattice_sum
+    and the sign γ₀ > 0 (bonds prefer moments along them, as the
+    dipole–dipole coupling does), chosen because it gives Co's easy axis:
+    at c/a = 1.622 < √(8/3) the out-of-plane bonds are flatter (which favours
+    the plane) but shorter, so stronger under γ ∝ r⁻³ (which wins), K_eff > 0.
+    Co's measured anisotropy comes mostly from single-ion spin–orbit
+    coupling; its size and origin here are not Co's. Physics checked: the
+    relaxation (SpinLBFGS, J included, from uniform spins 40° off the
+    expected minimum with noise on each spin; both starts in the basin where
+    E(θ) is convex, |θ − θ_min| < 45°) ends where the sign of K_eff says."""
+    rng = np.random.default_rng(7)
+    for gamma0, theta0, along_c in ((1e-3, 0.7, True), (-1e-3, np.pi / 2 - 0.7, False)):
+        term, ref, *_ = _hcp_co(CO_C / CO_A, gamma0)
+        atoms = ref.repeat((2, 2, 2))
+        ase_spin.set_spins(atoms, _uniform(theta0, 0.5, len(atoms))
+                           + 0.05 * rng.normal(size=(len(atoms), 3)), 1.6)
+        atoms.calc = SpinLatticeCalculator([term])
+        assert SpinLBFGS(atoms).run(fmax=1e-10, steps=300)
+        sz = np.abs(ase_spin.get_spins(atoms)[:, 2])
+        np.testing.assert_allclose(sz, 1.0 if along_c else 0.0, atol=1e-8)
+    term, ref, *_ = _hcp_co(IDEAL_CA, 1e-3)
+    atoms = ref.repeat((2, 2, 2))
+    s = _uniform(0.7, 0.5, len(atoms))
+    ase_spin.set_spins(atoms, s, 1.6)
+    res = _bound(term, atoms).evaluate(atoms.positions, s, Want(magnetic_forces=True))
+    assert np.abs(np.cross(s, res.magnetic_forces)).max() < 1e-15
+    assert np.abs(res.magnetic_forces).max() > 0.05   # the exchange field, parallel to s

@@ -118,7 +118,7 @@ def test_frozen_lattice_energy_to_round_off_when_fields_do_not_depend_on_the_spi
     """Each rotation turns s_i about its own field B_i; where B_i does not depend
     on s_i (exchange, a Zeeman field, DMI) it leaves s_i·B_i and so E unchanged:
     at fixed positions the energy stays at round-off (docs/benchmarks.md,
-    "Against Spirit"). A uniaxial axis across the field makes B_i depend on s_i:
+    "Long runs: energy"). A uniaxial axis across the field makes B_i depend on s_i:
     the energy then moves (dynamics.md: the splitting loses its order there)."""
     from ase_spin.terms.anisotropy import UniaxialAnisotropy
     from ase_spin.terms.dmi import DMI

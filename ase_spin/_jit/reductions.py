@@ -16,8 +16,8 @@ Those called per row or pair take arrays and hold no branch, and the
 request's flags stay in the kernels (``if want_forces: add_row(...)``): an
 array passed into an inlined function with branches costs a reference-count
 increment and decrement per call, which numba's pruning does not remove
-(measured on the exchange passes' serial twins: docs/benchmarks.md, "Tried and
-not kept"). A kernel with a serial twin passes its
+(measured on the exchange passes' serial twins: ``git show
+80c7697:docs/benchmarks.md``, "Tried and not kept"). A kernel with a serial twin passes its
 own ``reduce_threads`` to :func:`reduce_scatter` (the twin's is
 :func:`reduce_threads_serial`; a name looked up here would stay the threaded
 one)."""

@@ -87,7 +87,7 @@ class Langevin(BathHalfSteps, CollectivePRK):
     one correction: :func:`_damped`), so that the step is symmetric; N(τ):
     s_i ← (s_i + ζ_i)/|s_i + ζ_i| with ζ_i ⟂ s_i Gaussian of variance
     σ_i² = 2D_iτ(1 + 5D_iτ) per direction (:func:`noise_amplitude`: weak
-    second order). Sampling is weak second order (measured, docs/benchmarks.md).
+    second order). Sampling is weak second order (measured, docs/thermostats.md).
     Every step is this whole step, whatever observes the run and however it
     is cut into runs: its output point lies on the trajectory, and a seed
     fixes the trajectory (docs/dynamics.md, "Reproducibility"). Four passes

@@ -14,7 +14,7 @@ CONVERGED, ROUNDOFF, NOT_CONVERGED = 0, 1, 2
 
 #: Earlier midpoint differences the default solver's Anderson acceleration keeps
 #: (0: none, the plain fixed-point iteration); a longer memory saved no sweeps
-#: (docs/benchmarks.md, "Tried and not kept").
+#: (``git show 80c7697:docs/benchmarks.md``, "Tried and not kept").
 MEMORY = 3
 #: Steps with c_i|B̄_i| above this (rad, for a unit spin) are refused by the locally
 #: exact update: its Cayley rotation angle 2 atan(c|B̄|/|v|) saturates at π, so such a step
