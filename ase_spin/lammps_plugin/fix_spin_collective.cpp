@@ -23,7 +23,9 @@
    exchanged before every field evaluation and the largest change taken over
    all ranks, so that every rank sweeps the same number of times and no
    result depends on the domain decomposition (up to the order of the
-   floating-point sums inside the pair styles). Orders 4 and 6: Suzuki's
+   floating-point sums inside the pair styles). Each solve starts from a
+   guess extrapolated from the atom's own increments W - s of the last steps
+   (predict()), which the atom carries between ranks. Orders 4 and 6: Suzuki's
    five-stage and Kahan–Li's nine-stage compositions of this step. */
 
 #include "fix_spin_collective.h"
@@ -32,11 +34,13 @@
 #include "comm.h"
 #include "error.h"
 #include "force.h"
+#include "memory.h"
 #include "modify.h"
 #include "pair.h"
 #include "update.h"
 #include "utils.h"
 
+#include <algorithm>
 #include <cfloat>
 #include <cmath>
 #include <cstring>
@@ -52,6 +56,11 @@ constexpr int MAX_ROUNDS = 12;
 // move in an outer round for the kick and drift made from the W before it to stand.
 constexpr double FLOOR_FACTOR = 64.0;
 constexpr double SETTLED_FACTOR = 8.0;
+// Increments W - s kept per atom and stage for the first guess of the midpoint
+// spins (a polynomial through them, one step ahead): the one-stage step, the
+// compositions (memory: 3 doubles per increment, stage and atom).
+constexpr int PREDICTOR_DEPTH = 6;
+constexpr int PREDICTOR_DEPTH_STAGES = 4;
 
 // ase_spin.md.compositions: Suzuki's five-stage order 4, Kahan & Li's nine-stage order 6.
 std::vector<double> composition(int order)
@@ -102,13 +111,15 @@ bool local_midpoint(const double *p, const double *b, double c, double *w)
 
 FixSpinCollective::FixSpinCollective(LAMMPS *lmp, int narg, char **arg) :
     Fix(lmp, narg, arg), moving(1), tol(1e-15), max_iter(100), initialised(false),
-    sweeps_step(0.0), rounds_step(0.0), sweeps_total(0.0)
+    history(nullptr), depth(0), history_width(0), stage(0),
+    sweeps_step(0.0), rounds_step(0.0), sweeps_total(0.0), forward_step(0.0),
+    reverse_step(0.0), reduce_step(0.0)
 {
   if (!atom->sp_flag) error->all(FLERR, "Fix spin/collective requires atom_style spin");
   if (igroup != 0) error->all(FLERR, "Fix spin/collective must act on group all");
   time_integrate = 1;
   vector_flag = 1;
-  size_vector = 3;
+  size_vector = 7;
   global_freq = 1;
   extvector = 0;
 
@@ -145,6 +156,13 @@ FixSpinCollective::FixSpinCollective(LAMMPS *lmp, int narg, char **arg) :
   if (!lattice_given)
     error->all(FLERR, "Fix spin/collective: the keyword lattice (moving or frozen) is required");
   gammas = composition(order);
+  depth = gammas.size() == 1 ? PREDICTOR_DEPTH : PREDICTOR_DEPTH_STAGES;
+  history_width = 1 + 3 * depth * static_cast<int>(gammas.size());
+  maxexchange = history_width;
+  create_attribute = 1;    // atoms created later start without history (set_arrays)
+  grow_arrays(atom->nmax);
+  atom->add_callback(Atom::GROW);
+  for (int i = 0; i < atom->nlocal; i++) history[i][0] = 0.0;
   floor_tol = FLOOR_FACTOR * tol;
   settled_tol = SETTLED_FACTOR * tol;
   if (moving && atom->map_style == Atom::MAP_NONE)
@@ -156,6 +174,8 @@ FixSpinCollective::FixSpinCollective(LAMMPS *lmp, int narg, char **arg) :
 
 FixSpinCollective::~FixSpinCollective()
 {
+  atom->delete_callback(id, Atom::GROW);
+  memory->destroy(history);
   // a carrier never used by an init (the fix removed before any run)
   if (!initialised && !carrier_id.empty() && modify && modify->get_fix_by_id(carrier_id))
     modify->delete_fix(carrier_id);
@@ -207,12 +227,33 @@ void FixSpinCollective::init()
   for (auto f : modify->get_fix_by_style("^precession/spin")) field_fixes.push_back(f);
   for (auto f : modify->get_fix_by_style("^setforce/spin")) field_fixes.push_back(f);
   if (!modify->get_fix_by_style("^langevin/spin").empty())
-    error->all(FLERR, "Fix spin/collective has no thermostat yet: fix langevin/spin works "
-                      "with fix nve/spin only");
+    error->all(FLERR, "Fix spin/collective has no spin thermostat: fix langevin/spin acts only "
+                      "inside fix nve/spin's sequential update (equilibrate with fix nve/spin "
+                      "and fix langevin/spin, then unfix them and define fix spin/collective)");
   for (auto f : modify->get_fix_by_style("^nve/spin"))
     if (carrier_id.empty() || carrier_id != f->id)
       error->all(FLERR, "Fix spin/collective and fix {} ({}) both integrate the spins", f->id,
                  f->style);
+  /* The step computes its forces and fields itself, inside initial_integrate:
+     a fix that adds forces after LAMMPS's force evaluation (post_force: fix
+     langevin, addforce, setforce, efield, ...) would change only that end-of-
+     step evaluation, which the next step does not read, so it would be
+     silently without effect: refused. Fixes acting between steps on x or v
+     (fix temp/csvr, temp/berendsen, momentum, ...) do act. */
+  for (int k = 0; k < modify->nfix; k++) {
+    Fix *f = modify->fix[k];
+    if (f == this || (!carrier_id.empty() && carrier_id == f->id)) continue;
+    if (utils::strmatch(f->style, "^precession/spin") || utils::strmatch(f->style, "^setforce/spin"))
+      continue;    // in the fields the step evaluates
+    if (f->time_integrate)
+      error->all(FLERR, "Fix spin/collective and fix {} ({}) both integrate the atoms", f->id,
+                 f->style);
+    if (modify->fmask[k] & POST_FORCE)
+      error->all(FLERR, "Fix spin/collective computes forces inside its step; fix {} ({}) adds "
+                        "forces after them (post_force), which the step would not see: not "
+                        "supported (a lattice thermostat acting between steps, fix temp/csvr "
+                        "or temp/berendsen, works)", f->id, f->style);
+  }
 
   if (moving) {
     if (!carrier_id.empty() && modify->get_fix_by_id(carrier_id)) {
@@ -233,9 +274,24 @@ void FixSpinCollective::init()
 
 double FixSpinCollective::global_max(double value)
 {
+  reduce_step += 1.0;
   double all;
   MPI_Allreduce(&value, &all, 1, MPI_DOUBLE, MPI_MAX, world);
   return all;
+}
+
+/* Forward (positions and spins to the ghosts) and reverse (ghost forces and
+   fields to their owners) communication, counted. */
+void FixSpinCollective::forward()
+{
+  forward_step += 1.0;
+  comm->forward_comm();
+}
+
+void FixSpinCollective::reverse()
+{
+  reverse_step += 1.0;
+  comm->reverse_comm();
 }
 
 /* Local positions and spin directions set to pos and spins (3 per local atom), then
@@ -251,7 +307,7 @@ void FixSpinCollective::put_state(const std::vector<double> &pos,
       x[i][d] = pos[3 * i + d];
       sp[i][d] = spins[3 * i + d];
     }
-  comm->forward_comm();
+  forward();
 }
 
 /* fm (rad/ps) of the local atoms at the state put_state set: the spin pair styles,
@@ -277,7 +333,7 @@ void FixSpinCollective::forces(std::vector<double> &out)
   std::memset(&atom->fm[0][0], 0, sizeof(double) * 3 * nall);
   if (atom->fm_long) std::memset(&atom->fm_long[0][0], 0, sizeof(double) * 3 * nall);
   force->pair->compute(0, 0);
-  if (force->newton_pair) comm->reverse_comm();
+  if (force->newton_pair) reverse();
   double **f = atom->f;
   const int n = atom->nlocal;
   for (int i = 0; i < n; i++)
@@ -288,9 +344,79 @@ void FixSpinCollective::forces(std::vector<double> &out)
 
 void FixSpinCollective::initial_integrate(int /*vflag*/)
 {
-  sweeps_step = rounds_step = 0.0;
-  for (double g : gammas) substep(g * update->dt);
+  sweeps_step = rounds_step = forward_step = reverse_step = reduce_step = 0.0;
+  for (stage = 0; stage < static_cast<int>(gammas.size()); stage++)
+    substep(gammas[stage] * update->dt);
+  for (int i = 0; i < atom->nlocal; i++)
+    history[i][0] = std::min(history[i][0] + 1.0, static_cast<double>(depth));
   sweeps_total += sweeps_step;
+}
+
+/* The first guess of the midpoint spin of atom i at this stage: s plus the
+   polynomial through the increments W - s of the same stage in its last m steps
+   (m = those recorded, up to depth) taken one step ahead,
+   sum_j (-1)^(j+1) C(m, j) d_j (d_1 the newest; m = 0: s itself). Only the
+   number of sweeps depends on it (the solve runs to tol from any guess), and it
+   depends only on the atom's own past, so the trajectory still does not depend
+   on the ranks. */
+void FixSpinCollective::predict(int i, const double *s, double *w) const
+{
+  const int m = static_cast<int>(history[i][0]);
+  const double *d = &history[i][1 + 3 * depth * stage];
+  double c = 1.0, sign = 1.0;
+  for (int k = 0; k < 3; k++) w[k] = s[k];
+  for (int j = 1; j <= m && j <= depth; j++) {
+    c = c * (m - j + 1) / j;    // C(m, j)
+    for (int k = 0; k < 3; k++) w[k] += sign * c * d[3 * (j - 1) + k];
+    sign = -sign;
+  }
+  const double norm = std::sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+  const bool usable = norm > 0.5 && norm < 2.0;    // (no history, or a broken one: s)
+  for (int k = 0; k < 3; k++) w[k] = usable ? w[k] / norm : s[k];
+}
+
+/* This stage's increments W - s into the atoms' history (the older ones shifted). */
+void FixSpinCollective::record()
+{
+  for (int i = 0; i < atom->nlocal; i++) {
+    double *d = &history[i][1 + 3 * depth * stage];
+    for (int k = 3 * depth - 1; k >= 3; k--) d[k] = d[k - 3];
+    for (int k = 0; k < 3; k++) d[k] = W[3 * i + k] - s0[3 * i + k];
+  }
+}
+
+/* ---------------------------------------------------------------------- */
+
+void FixSpinCollective::grow_arrays(int nmax)
+{
+  memory->grow(history, nmax, history_width, "spin/collective:history");
+}
+
+void FixSpinCollective::set_arrays(int i)
+{
+  history[i][0] = 0.0;
+}
+
+void FixSpinCollective::copy_arrays(int i, int j, int /*delflag*/)
+{
+  for (int k = 0; k < history_width; k++) history[j][k] = history[i][k];
+}
+
+int FixSpinCollective::pack_exchange(int i, double *buf)
+{
+  for (int k = 0; k < history_width; k++) buf[k] = history[i][k];
+  return history_width;
+}
+
+int FixSpinCollective::unpack_exchange(int nlocal, double *buf)
+{
+  for (int k = 0; k < history_width; k++) history[nlocal][k] = buf[k];
+  return history_width;
+}
+
+double FixSpinCollective::memory_usage()
+{
+  return static_cast<double>(atom->nmax) * history_width * sizeof(double);
 }
 
 /* The midpoint spins W for the fields at q (and q~: mean), from the current W, to
@@ -376,7 +502,9 @@ void FixSpinCollective::substep(double h)
       v0[3 * i + d] = v[i][d];
       s0[3 * i + d] = sp[i][d];
     }
-  W = s0;
+  for (int i = 0; i < n; i++)
+    if (sp[i][3] != 0.0) predict(i, &s0[3 * i], &W[3 * i]);
+    else for (int d = 0; d < 3; d++) W[3 * i + d] = s0[3 * i + d];
   std::vector<double> half_kick(n);    // (h/2) ftm2v / m_i
   for (int i = 0; i < n; i++)
     half_kick[i] = 0.5 * h * force->ftm2v / (rmass ? rmass[i] : mass[type[i]]);
@@ -420,6 +548,7 @@ void FixSpinCollective::substep(double h)
     for (size_t k = 0; k < n3; k++) P[k] += half_kick[k / 3] * F[k];
   }
 
+  record();
   // the end spins: the reflection of s about W, s~ = s + 2 (s x W) x W
   for (int i = 0; i < n; i++) {
     const double *s = &s0[3 * i];
@@ -442,14 +571,24 @@ void FixSpinCollective::substep(double h)
     }
   // the ghosts follow (the next substep's first evaluation, or LAMMPS's own
   // forward communication or re-neighbouring after this fix)
-  comm->forward_comm();
+  forward();
 }
 
 /* f_ID[1]: midpoint sweeps in the last step (all stages); [2]: outer rounds in the last
-   step; [3]: sweeps since the fix was defined. The same on every rank. */
+   step; [3]: sweeps since the fix was defined; [4], [5], [6]: forward and reverse
+   ghost exchanges and global reductions (MPI_Allreduce) the fix made in the last
+   step (LAMMPS's own once-a-step exchanges not counted); [7]: ghost atoms, the
+   largest number on a rank (atom_style spin moves 7 doubles a ghost forward: x,
+   sp; 9 in reverse: f, fm, fm_long). The same on every rank. */
 double FixSpinCollective::compute_vector(int k)
 {
   if (k == 0) return sweeps_step;
   if (k == 1) return rounds_step;
-  return sweeps_total;
+  if (k == 2) return sweeps_total;
+  if (k == 3) return forward_step;
+  if (k == 4) return reverse_step;
+  if (k == 5) return reduce_step;
+  double ghosts = atom->nghost, most;
+  MPI_Allreduce(&ghosts, &most, 1, MPI_DOUBLE, MPI_MAX, world);
+  return most;
 }

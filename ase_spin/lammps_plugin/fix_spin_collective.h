@@ -36,6 +36,12 @@ class FixSpinCollective : public Fix {
   void init() override;
   void initial_integrate(int) override;
   double compute_vector(int) override;
+  void grow_arrays(int) override;
+  void copy_arrays(int, int, int) override;
+  void set_arrays(int) override;
+  int pack_exchange(int, double *) override;
+  int unpack_exchange(int, double *) override;
+  double memory_usage() override;
 
  private:
   int moving;                 // 1: lattice moving, 0: frozen
@@ -47,16 +53,30 @@ class FixSpinCollective : public Fix {
   std::vector<Fix *> field_fixes;
   bool initialised;
 
+  // per atom, migrating with it (grow/copy/pack_exchange): the number of steps
+  // recorded (up to depth), then per stage the increments W - s of the last depth
+  // steps, the newest first
+  double **history;
+  int depth, history_width;
+  int stage;    // the composition stage being taken
+
   // per-atom work arrays (local atoms, 3 per atom)
   std::vector<double> q0, v0, s0, qt, qt_last, P, W, Wn, F, Ba, Bb;
   double sweeps_step, rounds_step, sweeps_total;
+  // communication in the last step (all stages): forward and reverse ghost
+  // exchanges and global reductions the fix itself made
+  double forward_step, reverse_step, reduce_step;
 
   void substep(double h);
+  void predict(int i, const double *s, double *w) const;
+  void record();
   void solve(double h, bool mean, double &moved);
   void put_state(const std::vector<double> &pos, const std::vector<double> &spins);
   void fields(std::vector<double> &out);
   void forces(std::vector<double> &out);
   double global_max(double value);
+  void forward();
+  void reverse();
 };
 
 }    // namespace LAMMPS_NS
