@@ -19,6 +19,9 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
+import subprocess
+import sys
 import tempfile
 import time
 from types import SimpleNamespace
@@ -30,7 +33,7 @@ from ase import units
 from ase_spin.constants import HBAR_LAMMPS
 
 __all__ = ["lammps_available", "load_lammps", "LammpsSpin", "LammpsLattice", "EV_PER_FM",
-           "LAMMPS_NKTV2P", "lammps_calculator", "lammps_minimise"]
+           "LAMMPS_NKTV2P", "lammps_calculator", "lammps_minimise", "mpiexec_path", "lammps_neb"]
 
 #: LAMMPS's ħ in eV·ps: its ``fm`` (rad/ps) times this is B = −∂E/∂s in eV.
 EV_PER_FM = HBAR_LAMMPS / (1000.0 * units.fs)
@@ -319,3 +322,153 @@ def lammps_minimise(atoms, style="spin/lbfgs", ftol=1e-6, maxiter=100_000, modif
     return SimpleNamespace(spins=spins, energy=float(energy.group(3)),
                            iterations=int(counts.group(1)), evaluations=int(counts.group(2)),
                            seconds=seconds, criterion=criterion.group(1).strip())
+
+
+def mpiexec_path():
+    """The MPI launcher (the mpich wheel's ``mpiexec``), or None."""
+    for candidate in (shutil.which("mpiexec"), os.path.join(sys.prefix, "bin", "mpiexec")):
+        if candidate and os.path.exists(candidate):
+            return candidate
+    return None
+
+
+#: one line of neb/spin's status table: step, the replicas' largest squared
+#: torque norm and largest torque component (rad/ps), |∇E| of the first, last
+#: and climbing replicas, the forward and reverse barriers (eV), the path
+#: length, then (reaction coordinate, energy) per replica
+_NEB_STATUS = re.compile(r"^\s*(\d+)\s+(\S+)\s+(\S+)\s+(\S+)\s+(\S+)\s+(\S+)\s+(\S+)"
+                         r"\s+(\S+)\s+(\S+)\s+(.*)$")
+
+
+def lammps_neb(images, k=None, ftol=1e-8, steps=(2000, 20000), every=100, modify=(),
+               timeout=600):
+    """LAMMPS's geodesic NEB (``neb/spin``, climbing image in its second
+    phase) on a frozen lattice, from the band ``images`` (ase.Atoms sharing
+    positions; the first carries the calculator, whose terms
+    :func:`ase_spin.write_lammps` maps).
+
+    One MPI rank per replica: ``mpiexec -n M python`` running the deck with
+    ``-partition Mx1``; each replica starts from its image (``neb/spin ...
+    each replica.$i``, ``$i`` a world-style variable: one value per
+    partition in order), relaxes by ``min_style spin`` (damped precession)
+    with ``min_modify norm max`` (the stopping criterion is then
+    max_i |s_i × ħ fm_i| in eV, the largest row of the GNEB force as
+    ase_spin's ``GNEB.fmax``) and ``modify`` (more ``min_modify`` settings),
+    ``neb/spin 0.0 ftol N1 N2 every``: N1, N2 = ``steps`` iterations of the
+    plain and of the climbing band. The spring ``k`` is given in eV/rad² as
+    in :class:`ase_spin.optimize.GNEB` (LAMMPS's ``fix neb/spin`` takes it
+    in rad/ps per rad: k/ħ); default 0.1·max_i|B_i| of the images, GNEB's.
+
+    The deck is write_lammps's, with one change: ``atom_modify sort`` is
+    turned on (1000 steps). With sorting off and one rank per replica,
+    LAMMPS 2025.7's fix neb/spin exchanges the neighbour replicas' spins as
+    3·N doubles read straight from its N × 4 spin array (direction and
+    magnitude), so every atom after the first gets a wrong neighbour spin
+    and a wrong tangent; with sorting on it copies them atom by atom.
+
+    Returns a namespace: ``spins`` (M, N, 3), the final replicas (a dump
+    of each); from the last line of neb/spin's status table (printed to 8
+    significant digits): ``energies`` (M,) (eV), ``reaction_coordinate``
+    (M,) (normalised), ``barrier`` and ``reverse_barrier`` (the climbing
+    replica's energy above the first and the last, eV), ``climbing`` (its
+    index), ``table`` (every status line as (step, largest squared torque
+    norm (rad/ps)², energies) tuples, the climbing phase's marked by
+    ``climbing_from``, its first step); ``criteria`` and ``iterations``
+    (of both phases, from replica 0's log); ``seconds`` (the whole run).
+    """
+    import ase_spin
+    from ase_spin.spins import get_moments, split_moments
+
+    images = list(images)
+    M, n = len(images), len(images[0])
+    if M < 3:
+        raise ValueError(f"lammps_neb needs at least three images, got {M}")
+    cell = images[0].cell.array
+    if np.abs(cell[np.triu_indices(3, 1)]).max() > 0:
+        raise ValueError("lammps_neb needs a lower-triangular (LAMMPS-form) cell: the "
+                         "spins are read back unrotated")
+    for nu, im in enumerate(images):
+        if len(im) != n or not np.array_equal(im.positions, images[0].positions):
+            raise ValueError(f"image {nu} has other atoms or positions than image 0 "
+                             "(neb/spin keeps the lattice frozen)")
+    launcher = mpiexec_path()
+    if launcher is None:
+        raise RuntimeError("lammps_neb needs mpiexec (the mpich wheel provides it)")
+    calc = images[0].calc
+    if calc is None:
+        raise ValueError("lammps_neb: the first image needs the calculator (its terms make "
+                         "the deck)")
+    if k is None:
+        k = 0.1 * max(np.linalg.norm(calc.get_magnetic_forces(im), axis=1).max()
+                      for im in images)
+    n1, n2 = (int(x) for x in steps)
+    with tempfile.TemporaryDirectory() as tmp:
+        files = ase_spin.write_lammps(tmp, images[0], timestep=1.0, lattice="frozen")
+        deck = files.input.read_text().splitlines()
+        end = next(j for j, line in enumerate(deck) if line.startswith("fix integrate"))
+        deck = [line.replace(f"read_data {files.data.name}", f"read_data {files.data}")
+                for line in deck[:end] if line.strip() and not line.startswith("#")]
+        deck = [line.replace("sort 0 0.0", "sort 1000 0.0") if line.startswith("atom_modify")
+                else line for line in deck]
+        if not any(line.startswith("atom_modify") and "sort 1000" in line for line in deck):
+            raise RuntimeError("lammps_neb: write_lammps's deck has no 'atom_modify ... sort "
+                               "0 0.0' line to turn sorting on in (see the docstring)")
+        # the first replica keeps the data file's state (neb/spin's 'each' skips it)
+        for nu, im in list(enumerate(images))[1:]:
+            unit, mu = split_moments(get_moments(im))
+            rows = zip(im.positions.tolist(), unit.tolist(), mu.tolist())
+            lines = [str(n)] + [f"{i + 1} {m!r} {x[0]!r} {x[1]!r} {x[2]!r} {s[0]!r} {s[1]!r} "
+                                f"{s[2]!r}" for i, (x, s, m) in enumerate(rows)]
+            with open(os.path.join(tmp, f"replica.{nu + 1}"), "w") as fh:
+                fh.write("\n".join(lines) + "\n")
+        deck += [f"fix band all neb/spin {float(k) / EV_PER_FM!r}",
+                 "variable i world " + " ".join(str(nu + 1) for nu in range(M)),
+                 "compute unit_spins all property/atom spx spy spz",
+                 f"thermo {10 * (n1 + n2) + 1}", "min_style spin", "min_modify norm max",
+                 *modify,
+                 f"neb/spin 0.0 {float(ftol)!r} {n1} {n2} {int(every)} each {tmp}/replica.${{i}}",
+                 f"write_dump all custom {tmp}/final.${{i}} id c_unit_spins[1] c_unit_spins[2] "
+                 "c_unit_spins[3] modify sort id format float %.17g"]
+        with open(os.path.join(tmp, "in.neb"), "w") as fh:
+            fh.write("\n".join(deck) + "\n")
+        # LAMMPS wants -in with partitions; the library reads the deck by lmp.file.
+        # finalize(), not close(): a rank that leaves without MPI_Finalize lets
+        # mpiexec kill the others (seen here: exit status 9 after a converged band)
+        script = ("import sys\n"
+                  f"sys.path.insert(0, {os.path.dirname(os.path.abspath(__file__))!r})\n"
+                  "from lammps_peer import load_lammps\n"
+                  f"lmp = load_lammps().lammps(cmdargs=['-partition', '{M}x1', '-in', 'in.neb', "
+                  "'-log', 'log.lammps', '-screen', 'none', '-nocite'])\n"
+                  "lmp.file('in.neb')\nlmp.finalize()\n")
+        env = dict(os.environ, OMP_NUM_THREADS="1")
+        t0 = time.perf_counter()
+        done = subprocess.run([launcher, "-n", str(M), sys.executable, "-c", script], cwd=tmp,
+                              env=env, capture_output=True, text=True, timeout=timeout)
+        seconds = time.perf_counter() - t0
+        log = os.path.join(tmp, "log.lammps")
+        text = open(log).read() if os.path.exists(log) else ""
+        if done.returncode != 0:
+            raise RuntimeError(f"LAMMPS neb/spin failed ({done.returncode}): "
+                               f"{done.stderr[-2000:]}\n{text[-2000:]}")
+        spins = np.array([np.loadtxt(os.path.join(tmp, f"final.{nu + 1}"), skiprows=9)[:, 1:4]
+                          for nu in range(M)])
+        replica0 = open(os.path.join(tmp, "log.lammps.0")).read()
+    table, climbing_from, last, climbing = [], None, None, None
+    for line in text.splitlines():
+        if line.startswith("Climbing replica"):
+            climbing_from, climbing = len(table), int(line.split("=")[1]) - 1
+            continue
+        m = _NEB_STATUS.match(line)
+        if m is None:
+            continue
+        pairs = np.array(m.group(10).split()[:2 * M], dtype=float).reshape(M, 2)
+        table.append((int(m.group(1)), float(m.group(2)), pairs[:, 1]))
+        last = (m, pairs)
+    m, pairs = last
+    return SimpleNamespace(
+        spins=spins, energies=pairs[:, 1], reaction_coordinate=pairs[:, 0],
+        barrier=float(m.group(7)), reverse_barrier=float(m.group(8)), climbing=climbing,
+        table=table, climbing_from=climbing_from, seconds=seconds,
+        criteria=[c.strip() for c in re.findall(r"Stopping criterion\s*=\s*(.*)", replica0)],
+        iterations=[int(c) for c in re.findall(r"Iterations, force evaluations\s*=\s*(\d+)",
+                                                replica0)])

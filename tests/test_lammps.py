@@ -9,11 +9,12 @@ import pytest
 from ase.build import bulk
 
 import ase_spin
-from lammps_peer import LammpsSpin, lammps_available, lammps_calculator
+from lammps_peer import LammpsSpin, lammps_available, lammps_calculator, mpiexec_path
 
 from conftest import CO_BS, CO_LJ, cone_spins
 
 pytestmark = pytest.mark.skipif(not lammps_available(), reason="lammps not importable")
+_MPIEXEC = mpiexec_path()
 
 
 @pytest.mark.parametrize("offset", [False, True])
@@ -365,3 +366,152 @@ def test_skyrmion_minimum_agrees_with_lammps():
     assert topological_charge(atoms) == pytest.approx(-1.0, abs=1e-9)
     assert abs(atoms.get_potential_energy() - ref.energy) < 1e-13
     assert np.abs(ase_spin.get_spins(atoms) - ref.spins).max() < 1e-5
+
+
+def _chain(sz, n=4, field=5.0, psi_deg=30.0, D=0.0, J=0.010, K=0.001, a=2.5):
+    """An open chain of n spins along x (2.2 μB, spacing a): nearest-neighbour
+    exchange J (Bethe–Slater, J(a) = J), interfacial DMI D (D_ij = D e_ij × ẑ),
+    uniaxial anisotropy K along z, a field (T) at ψ from z in the xz plane;
+    spins near ±z (``sz``), relaxed to 1e-13 eV. Strong exchange (J ≫ K) keeps
+    the chain's reversal coherent without DMI: a macrospin of n·K."""
+    from ase import Atoms
+
+    from ase_spin.optimize import SpinLBFGS
+
+    atoms = Atoms(f"Fe{n}", positions=[[i * a, 0.0, 0.0] for i in range(n)],
+                  cell=[n * a + 10.0, 10.0, 10.0], pbc=[False, True, True])
+    ase_spin.set_spins(atoms, np.tile([0.05, 0.02, sz], (n, 1)), magnitudes=2.2)
+    psi, rc = np.radians(psi_deg), 1.2 * a
+    terms = [ase_spin.Exchange(ase_spin.BetheSlater(J * np.e / 4.0, 0.0, a), rc=rc),
+             ase_spin.UniaxialAnisotropy(K, [0.0, 0.0, 1.0]),
+             ase_spin.Zeeman(field, [np.sin(psi), 0.0, np.cos(psi)])]
+    if D:
+        terms.append(ase_spin.DMI(D, [0.0, 0.0, 1.0], rc=rc))
+    atoms.calc = ase_spin.SpinLatticeCalculator(terms)
+    assert SpinLBFGS(atoms).run(fmax=1e-13, steps=5000)
+    return atoms
+
+
+def _chain_band(images, **scene):
+    """The geodesic band between the chain's metastable state (near −z, first)
+    and its ground state (near +z), as ase_spin's GNEB interpolates it."""
+    from ase_spin.optimize import GNEB
+
+    first, last = _chain(-1.0, **scene), _chain(1.0, **scene)
+    band = GNEB([first] + [first.copy() for _ in range(images - 2)] + [last], climb=True)
+    band.interpolate()
+    return band
+
+
+def _stoner_wohlfarth_barrier(n=4, field=5.0, psi_deg=30.0, K=0.001, mu=2.2):
+    """n × the macrospin barrier from its metastable minimum: E(θ) = −K cos²θ
+    − μ μB H cos(θ − ψ), the highest point between the minima near θ = π and 0."""
+    from scipy.optimize import minimize_scalar
+
+    psi, muH = np.radians(psi_deg), mu * ase_spin.MU_B * field
+
+    def E(t):
+        return -K * np.cos(t) ** 2 - muH * np.cos(t - psi)
+
+    opts = {"xatol": 1e-13}
+    low = minimize_scalar(E, bounds=(np.pi / 2, 3 * np.pi / 2), method="bounded", options=opts)
+    top = minimize_scalar(lambda t: -E(t), bounds=(0.0, np.pi), method="bounded",
+                          options=opts)
+    return n * (E(top.x) - low.fun)
+
+
+@pytest.mark.skipif(_MPIEXEC is None, reason="no mpiexec")
+def test_gneb_barrier_agrees_with_lammps_neb_spin():
+    """An open chain of four spins (exchange, anisotropy, a field at 30° to
+    the easy axis) reversing from its metastable state, from the same
+    geodesic band of three images: LAMMPS's neb/spin (min_style spin,
+    climbing image; discrete_factor 4, the largest stable step: 2 diverges)
+    and ase_spin's GNEB, both to a GNEB force of 1e-9 eV (the largest row,
+    both codes' criterion), stop at the same saddle, and the barrier is the
+    macrospin's Stoner–Wohlfarth barrier of 4K. A residual force g leaves the
+    saddle energy off by about N g²/(2|λ|) and the spins by √N g/|λ|, λ ≈
+    1e-3 eV/rad² the softest curvature there: bounds of 1e-12 eV and 1e-5."""
+    from lammps_peer import lammps_neb
+
+    band = _chain_band(3)
+    theirs = lammps_neb(band.images, ftol=1e-9, steps=(100, 2000), every=50,
+                        modify=["min_modify discrete_factor 4.0"])
+    assert theirs.criteria == ["force tolerance", "force tolerance"]
+    assert theirs.climbing == 1
+    assert band.run(fmax=1e-9, steps=20000)
+    ci = band.climbing_image
+    assert ci == 1
+    # LAMMPS's saddle, evaluated by ase_spin (one Hamiltonian in both codes)
+    saddle = band.images[0].copy()
+    saddle.calc = band.images[0].calc
+    ase_spin.set_spins(saddle, theirs.spins[ci], magnitudes=2.2)
+    assert abs(saddle.get_potential_energy() - band.energies[ci]) < 1e-12
+    assert np.abs(theirs.spins[ci] - band.S[ci]).max() < 1e-5
+    assert np.abs(theirs.spins[[0, -1]] - band.S[[0, -1]]).max() < 1e-9  # the ends stay
+    # what neb/spin prints (8 significant digits)
+    assert theirs.barrier == pytest.approx(band.barrier(), rel=1e-7)
+    assert theirs.energies == pytest.approx(band.energies, rel=1e-7)
+    # both are the macrospin's: the reversal is coherent
+    assert band.barrier() == pytest.approx(_stoner_wohlfarth_barrier(), rel=1e-10)
+    assert np.abs(band.S[ci] - band.S[ci][0]).max() < 1e-6
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(_MPIEXEC is None, reason="no mpiexec")
+def test_gneb_band_agrees_with_lammps_neb_spin_with_dmi():
+    """Six spins with DMI (3 meV; the chain cants, the reversal is no longer
+    coherent), five images, LAMMPS's own settings (discrete_factor 10):
+    every image of both bands agrees (the non-climbing ones are placed by the
+    springs, k/ħ in LAMMPS's units), the saddle's energy to the bound of the
+    test above."""
+    from lammps_peer import lammps_neb
+
+    band = _chain_band(5, n=6, D=0.003)
+    theirs = lammps_neb(band.images, ftol=1e-9, steps=(2000, 20000), every=100)
+    assert theirs.criteria == ["force tolerance", "force tolerance"]
+    assert band.run(fmax=1e-9, steps=20000)
+    ci = band.climbing_image
+    assert theirs.climbing == ci
+    atoms = band.images[0].copy()
+    atoms.calc = band.images[0].calc
+    E = []
+    for s in theirs.spins:
+        ase_spin.set_spins(atoms, s, magnitudes=2.2)
+        E.append(atoms.get_potential_energy())
+    assert abs(E[ci] - band.energies[ci]) < 1e-12
+    assert np.abs(np.array(E) - band.energies).max() < 1e-9
+    assert np.abs(theirs.spins - band.S).max() < 1e-5
+    assert np.ptp(band.S[ci][:, 0]) > 0.01  # not coherent
+    assert theirs.barrier == pytest.approx(band.barrier(), rel=1e-6)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(_MPIEXEC is None, reason="no mpiexec")
+def test_skyrmion_collapse_barrier_agrees_with_lammps_neb_spin():
+    """The collapse of the periodic 12 × 12 film's skyrmion into the
+    ferromagnet (the scene of test_spirit.py's GNEB check), seven images from
+    the same geodesic band, both codes to 1e-7 eV: the same saddle (a
+    stationary point with soft translations of the collapsing core, so the
+    spins agree to 1e-4 only, its energy to 1e-10 eV) and barrier."""
+    from lammps_peer import lammps_neb
+
+    from ase_spin.optimize import GNEB, SpinLBFGS
+    from ase_spin.scenes import dmi_film, neel_skyrmion
+
+    skyrmion = dmi_film(12)
+    ase_spin.set_spins(skyrmion, neel_skyrmion(skyrmion.positions, 6.25), magnitudes=2.2)
+    assert SpinLBFGS(skyrmion).run(fmax=1e-10)
+    band = GNEB([skyrmion] + [skyrmion.copy() for _ in range(5)] + [dmi_film(12)], climb=True)
+    band.interpolate()
+    theirs = lammps_neb(band.images, ftol=1e-7, steps=(2000, 20000), every=100, timeout=1800)
+    assert theirs.criteria == ["force tolerance", "force tolerance"]
+    assert band.run(fmax=1e-7, steps=5000)
+    ci = band.climbing_image
+    assert theirs.climbing == ci
+    saddle = band.images[0].copy()
+    saddle.calc = band.images[0].calc
+    ase_spin.set_spins(saddle, theirs.spins[ci], magnitudes=2.2)
+    assert abs(saddle.get_potential_energy() - band.energies[ci]) < 1e-10
+    assert np.abs(theirs.spins[ci] - band.S[ci]).max() < 1e-4
+    assert theirs.barrier == pytest.approx(band.barrier(), rel=1e-6)
+    assert band.barrier() > 5e-3
