@@ -41,6 +41,15 @@ EV_PER_FM = HBAR_LAMMPS / (1000.0 * units.fs)
 LAMMPS_NKTV2P = 1.6021765e6
 
 
+#: A Python script that runs ``in.spin`` of its working folder with the lammps
+#: module (for ``mpiexec -n K python -c DECK_SCRIPT``). It ends with finalize(),
+#: not close(): a rank that leaves without MPI_Finalize lets mpiexec kill the
+#: others (seen: exit status 9 after a finished run).
+DECK_SCRIPT = ("from lammps_peer import load_lammps\n"
+               "lmp = load_lammps().lammps(cmdargs=['-log', 'log.lammps', '-screen', 'none', "
+               "'-nocite'])\nlmp.file('in.spin')\nlmp.finalize()\n")
+
+
 def load_lammps():
     """The ``lammps`` module, with the environment's MPI library loaded first
     (globally, so that LAMMPS's own library finds its symbols)."""

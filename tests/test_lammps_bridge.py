@@ -17,7 +17,7 @@ from ase.build import bulk
 import ase_spin
 from ase_spin.interop.lammps import LammpsIntegratorWarning, write_lammps
 from ase_spin.interop.lammps_dump import read_lammps_spin_dump
-from lammps_peer import EV_PER_FM, lammps_available, lammps_calculator, load_lammps
+from lammps_peer import DECK_SCRIPT, EV_PER_FM, lammps_available, lammps_calculator, load_lammps
 from ase_spin.scenes import cone
 from conftest import PACKAGE_PATH
 
@@ -163,9 +163,7 @@ def test_mpi_run_follows_suzuki_trotter_in_the_sector_order(tmp_path):
     atoms = _scene()
     dyn = ase_spin.SuzukiTrotter(atoms, 0.1 * units.fs, hbar=ase_spin.HBAR_LAMMPS)
     files = write_lammps(tmp_path, atoms, dyn, steps=40, dump_interval=10)
-    script = ("from lammps_peer import load_lammps\n"
-              "lmp = load_lammps().lammps(cmdargs=['-log', 'log.lammps', '-screen', 'none', "
-              "'-nocite'])\nlmp.file('in.spin')\nlmp.close()\n")
+    script = DECK_SCRIPT
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([PACKAGE_PATH, os.path.dirname(__file__),
                                                       os.environ.get("PYTHONPATH", "")]),
                OMP_NUM_THREADS="1", NUMBA_NUM_THREADS="1")

@@ -29,7 +29,7 @@ from ase_spin.interop.lammps_dump import read_lammps_spin_dump
 from ase_spin.interop.lammps_plugin import PluginBuildError, build_plugin
 from ase_spin.scenes import cone
 from conftest import PACKAGE_PATH
-from lammps_peer import lammps_available, lammps_calculator
+from lammps_peer import DECK_SCRIPT, lammps_available, lammps_calculator
 
 #: LAMMPS metal units convert force/mass to acceleration with 1/1.0364269e-4, 5.5e-8
 #: off the CODATA value ASE uses: ASE masses scaled by this compare the algorithms
@@ -115,9 +115,7 @@ def _lammps_process(directory, ranks=None, timeout=600):
     """The deck in ``directory`` run by the lammps Python module, under ``mpiexec
     -n ranks`` (or plainly, ranks=None), at most ``timeout`` seconds: the
     finished process (log in ``directory/log.lammps``)."""
-    script = ("from lammps_peer import load_lammps\n"
-              "lmp = load_lammps().lammps(cmdargs=['-log', 'log.lammps', '-screen', 'none', "
-              "'-nocite'])\nlmp.file('in.spin')\nlmp.close()\n")
+    script = DECK_SCRIPT
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([PACKAGE_PATH, os.path.dirname(__file__),
                                                       os.environ.get("PYTHONPATH", "")]),
                OMP_NUM_THREADS="1")
