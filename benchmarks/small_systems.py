@@ -13,8 +13,9 @@ evaluation (``Evaluator.evaluate``: energy, forces and magnetic forces; with all
 threads and with one, the faster) and their ratio; steps and
 evaluations timed alternately in blocks (median over blocks), midpoint sweeps
 and geometries per step; and, in a fresh process per scene, µs per step of
-its first ``dyn.run(2000)`` (numba's cache warm: loading the kernels from it
-included), what a user's first short run of the default path costs. Nothing
+its first ``dyn.run(2000)`` (numba's cache warm, by one untimed fresh process
+first: loading the kernels from it included), what a user's first short run
+of the default path costs. Nothing
 is switched: the paths timed are the defaults. ``--compare`` runs this in a fresh process per tree
 (PYTHONPATH set to it), alternating the trees round by round, after one warm-up
 run of each (numba's caches); a worktree of an older commit: ``git worktree
@@ -127,6 +128,7 @@ def main(argv=None):
         return
     sys.path.insert(0, os.path.dirname(__file__))
     if not args.compare:
+        first_runs()  # untimed: fills numba's cache if cold; the timed runs load from it
         first = first_runs()
         result = measure(args.blocks)
         for name, us in first.items():

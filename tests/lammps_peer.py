@@ -194,18 +194,34 @@ class LammpsSpin:
         self.lmp.command(f"run {int(steps)} pre no post no")
 
     def state(self):
-        """Unwrapped positions (Å), velocities (Å/ps) and unit spins."""
+        """Unwrapped positions (Å), velocities (Å/ps) and unit spins, in atom
+        ID order (on several MPI ranks gathered from all of them: a collective
+        call, every rank must make it)."""
         lmp, n = self.lmp, self.natoms
+        if lmp.extract_setting("world_size") > 1:
+            return self._gathered_state()
         x = np.array(lmp.numpy.extract_atom("x")[:n])
         image = np.array(lmp.numpy.extract_atom("image")[:n]).astype(np.int64)
-        # LAMMPS packs image flags as 10-bit fields offset by 512
-        img = np.column_stack([(image & 1023) - 512, ((image >> 10) & 1023) - 512,
-                               (image >> 20) - 512])
-        x = x + img @ self.atoms.cell.array
+        x = x + self._unwrap(image)
         v = np.array(lmp.numpy.extract_atom("v")[:n])
         lmp.command("run 0 post no")  # refresh the per-atom computes
         sp = np.array(lmp.numpy.extract_compute("sp", 1, 2)[:n])
         return x, v, sp
+
+    def _gathered_state(self):
+        lmp, n = self.lmp, self.natoms
+        x = np.ctypeslib.as_array(lmp.gather_atoms("x", 1, 3)).reshape(n, 3)
+        image = np.ctypeslib.as_array(lmp.gather_atoms("image", 0, 1)).astype(np.int64)
+        v = np.ctypeslib.as_array(lmp.gather_atoms("v", 1, 3)).reshape(n, 3)
+        sp = np.ctypeslib.as_array(lmp.gather_atoms("sp", 1, 4)).reshape(n, 4)[:, :3]
+        return x + self._unwrap(image), v.copy(), sp.copy()
+
+    def _unwrap(self, image):
+        """Image flags (LAMMPS packs them as 10-bit fields offset by 512) as
+        the shifts (Å) that unwrap positions."""
+        img = np.column_stack([(image & 1023) - 512, ((image >> 10) & 1023) - 512,
+                               (image >> 20) - 512])
+        return img @ self.atoms.cell.array
 
     def close(self):
         self.lmp.close()

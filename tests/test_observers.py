@@ -10,8 +10,9 @@ import ase_spin
 from ase_spin import (DMI, CollectivePRK, Cubic, Exchange, MonteCarlo, ShellExchange,
                       SpinLatticeCalculator, Zeeman)
 from ase_spin.analysis import (Fluctuations, LayerTriangulation, SpinCorrelation,
-                               SublatticeMagnetisation, TopologicalCharge, binder_crossing,
-                               block_average, jackknife, topological_charge)
+                               SublatticeMagnetisation, TopologicalCharge,
+                               autocorrelation_time, binder_crossing, block_average, jackknife,
+                               topological_charge)
 
 A = 2.5
 
@@ -173,6 +174,53 @@ def test_blocking_finds_the_error_of_a_correlated_series():
     j = jackknife(np.mean, x, blocks=64)
     assert j.value == pytest.approx(x.mean())
     assert j.error == pytest.approx(true, rel=0.3)
+
+
+def ar1(phi, n, rng, replicas=None):
+    """AR(1) series x_t = φ x_{t−1} + noise, started in its stationary
+    distribution; (n,) or (replicas, n)."""
+    shape = (n,) if replicas is None else (replicas, n)
+    noise = rng.normal(size=shape)
+    x = np.empty(shape)
+    x[..., 0] = noise[..., 0] / np.sqrt(1 - phi ** 2)
+    for t in range(1, n):
+        x[..., t] = phi * x[..., t - 1] + noise[..., t]
+    return x
+
+
+def test_autocorrelation_time_of_an_ar1_series():
+    """AR(1) with φ = 0.8: τ_int = (1 + φ)/(2(1 − φ)) = 4.5 samples. Over 40
+    independent series the estimates scatter about 4.5 by about their reported
+    error (the Madras–Sokal error is honest), the mean within 3 errors of the
+    mean; τ_int agrees with the blocking error, var(mean) = 2 τ var/n; white
+    noise gives 1/2; a short series warns; bad input is refused."""
+    phi, n = 0.8, 2 ** 13
+    exact = (1 + phi) / (2 * (1 - phi))
+    x = ar1(phi, n, np.random.default_rng(1), replicas=40)
+    est = [autocorrelation_time(row) for row in x]
+    values = np.array([e.value for e in est])
+    errors = np.array([e.error for e in est])
+    assert abs(values.mean() - exact) < 3 * values.std(ddof=1) / np.sqrt(len(values))
+    assert values.std(ddof=1) == pytest.approx(errors.mean(), rel=0.35)
+    assert 0.05 < errors.mean() / exact < 0.15
+
+    long = ar1(phi, 2 ** 16, np.random.default_rng(2))
+    tau = autocorrelation_time(long)
+    blocked = block_average(long)
+    tau_blocking = 0.5 * (blocked.error / (long.std() / np.sqrt(len(long)))) ** 2
+    assert tau_blocking == pytest.approx(tau.value, rel=0.25)
+
+    white = np.random.default_rng(3).normal(size=4096)
+    assert autocorrelation_time(white).value == pytest.approx(0.5, abs=0.05)
+
+    with pytest.warns(UserWarning, match="too short"):
+        autocorrelation_time(ar1(0.99, 200, np.random.default_rng(4)))
+    with pytest.raises(ValueError, match="1D"):
+        autocorrelation_time(x[:2])
+    with pytest.raises(ValueError, match="constant"):
+        autocorrelation_time(np.ones(10))
+    with pytest.raises(ValueError, match="c must be"):
+        autocorrelation_time(white, c=0)
 
 
 def test_binder_crossing_of_lines():

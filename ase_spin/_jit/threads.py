@@ -256,7 +256,7 @@ class AdaptiveThreads:
     It exists only for speed: on a shared machine fixed threads wait at every
     barrier for a descheduled worker, and one thread wastes an idle core;
     ``benchmarks/busy_machine.py`` runs both fixed counts and this choice side
-    by side (docs/benchmarks.md, "Threads on a busy machine").
+    by side (docs/benchmarks.md, "Throughput and scaling").
     """
 
     def __init__(self, threads=None, probe=1.0):
@@ -327,7 +327,7 @@ class AdaptiveThreads:
         (else the probe is put off by another interval without running: a
         threaded step whose workers cannot all have a core waits at every
         barrier for a descheduled one, and costs many one-thread steps;
-        docs/benchmarks.md, "Threads on a busy machine")."""
+        docs/benchmarks.md, "Throughput and scaling")."""
         now = time.perf_counter()
         if now < self._next_probe:
             return False

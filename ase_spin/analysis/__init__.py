@@ -11,7 +11,8 @@ from .plotting import plot_spectrum
 from .qpath import QPath, q_path
 from .spectra import (Spectrum, SpinSeries, StructureFactorRecorder,
                       dynamical_structure_factor, read_spin_series)
-from .statistics import Estimate, binder_crossing, block_average, blocking_levels, jackknife
+from .statistics import (Estimate, autocorrelation_time, binder_crossing, block_average,
+                         blocking_levels, jackknife)
 from .topology import LayerTriangulation, solid_angles, topological_charge
 
 __all__ = ["QPath", "q_path", "MagnonBands", "magnon_bands", "spin_wave_matrix",
@@ -19,5 +20,5 @@ __all__ = ["QPath", "q_path", "MagnonBands", "magnon_bands", "spin_wave_matrix",
            "read_spin_series", "plot_spectrum",
            "Observer", "SublatticeMagnetisation", "TopologicalCharge", "SpinCorrelation",
            "Fluctuations", "SpinTemperature", "Estimate", "block_average", "blocking_levels",
-           "jackknife", "binder_crossing", "LayerTriangulation", "solid_angles",
-           "topological_charge"]
+           "jackknife", "binder_crossing", "autocorrelation_time", "LayerTriangulation",
+           "solid_angles", "topological_charge"]

@@ -10,7 +10,7 @@ contracting (``benchmarks/solver.py`` for the largest step,
 ``benchmarks/solver_choice.py`` for the cost of each; docs/benchmarks.md, "The
 midpoint solver against the step size"). The colour-ordered sweeps exist only
 to save sweeps on a frozen lattice (``benchmarks/frozen_before_after.py``;
-docs/benchmarks.md, "Colour-ordered sweeps on a frozen lattice")."""
+docs/benchmarks.md, "Why each fast path exists")."""
 
 from __future__ import annotations
 
