@@ -136,6 +136,37 @@ def test_correlations_and_fluctuations_of_the_paramagnet():
     assert xi.value < 4 * xi.error + 0.3
 
 
+def test_observers_every_step_compute_no_calculator_results():
+    """An observer at every step of a Langevin run publishes no calculator
+    results (no forces or virial computed for it) and measures the same as
+    when results are published: a plain function attached beside it is what
+    makes the integrator publish them, once per step it is due."""
+    from ase_spin import Langevin
+
+    def run(with_function):
+        atoms = bulk("Fe", "sc", a=A).repeat(4)
+        ase_spin.set_spins(atoms, [0, 0, 1], magnitudes=2.0)
+        atoms.calc = SpinLatticeCalculator([ShellExchange([(A, 0.01)])])
+        dyn = Langevin(atoms, 2 * units.fs, temperature_K=300, spin_damping=1.0, friction=0.0,
+                       lattice="frozen", rng=np.random.default_rng(3))
+        published = []
+        publish = dyn.publish_results
+        dyn.publish_results = lambda: (published.append(dyn.nsteps), publish())[1]
+        fl, sub = Fluctuations(dyn), SublatticeMagnetisation(dyn, by=np.arange(len(atoms)) % 2)
+        dyn.attach(fl, interval=1)
+        dyn.attach(sub, interval=1)
+        if with_function:
+            dyn.attach(lambda: atoms.get_forces(), interval=2)
+        dyn.run(6)
+        return published, fl.series, sub.series
+
+    published, fl, sub = run(False)
+    assert published == []
+    published, fl2, sub2 = run(True)
+    assert published == [0, 2, 4, 6]
+    assert np.array_equal(fl, fl2) and np.array_equal(sub, sub2)
+
+
 def test_correlation_length_grows_towards_tc():
     """Heisenberg sc above T_C: ξ at 1.2 T_C is larger than at 2.5 T_C, and
     C(a) falls with r."""

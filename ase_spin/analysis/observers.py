@@ -36,9 +36,16 @@ __all__ = ["Observer", "SublatticeMagnetisation", "TopologicalCharge", "SpinCorr
 
 class Observer:
     """Base of the observers: ``__call__`` appends :meth:`measure` to the
-    series. Subclasses set ``name`` and implement :meth:`measure`."""
+    series. Subclasses set ``name`` and implement :meth:`measure`.
+
+    An observer measures through the integrator (spins, magnetisation, the
+    magnetic energy, the spin-temperature sums), never from the calculator's
+    results: it declares ``needs_results = False``, so that observing a step
+    computes no forces, virial or trajectory frame (which a plain function
+    attached to the dynamics gets, since it might read them)."""
 
     name = "observer"
+    needs_results = False
 
     def __init__(self, dyn, info=False):
         self._dyn = weakref.ref(dyn)
