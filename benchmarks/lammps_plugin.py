@@ -121,7 +121,7 @@ def scaling(plugin, tmp, sizes, steps, repeats, latency_us, bandwidth_GBs):
     that a busy machine's load falls on all alike; medians and ranges of ms/step,
     the 1-to-2-rank speed-up of each repeat (paired), and the plugin's measured
     communication a step with the cost it would have on a cluster of the given
-    latency and bandwidth (docs/lammps.md, "On many ranks")."""
+    latency and bandwidth (docs/lammps.md, "The collective integrator in LAMMPS: the ase_spin plugin")."""
     decks = {}
     for n in sizes:
         atoms = fcc_cobalt(n, conventions="lammps")

@@ -34,8 +34,8 @@ THREADED_COLOURS = 2
 #: From this many atoms on, the second-order step's predictor keeps 16
 #: increments and may take the least-squares row (kernels.PREDICTOR_DEPTH);
 #: below, 12: there the predictor's bookkeeping, not the sweeps, is what a
-#: step costs (the paper's 30-atom chain: docs/benchmarks.md, "The predictor's
-#: least-squares row").
+#: step costs (the paper's 30-atom chain: docs/benchmarks.md, "Why each
+#: fast path exists").
 LEAST_SQUARES_FROM = 64
 #: From this many atoms on, the predictor keeps 4 increments per stage: memory
 #: per atom, not speed, is then the limit (a 10⁶-atom run within 2 KiB per atom).
@@ -48,8 +48,8 @@ def predictor_depth(stages, natoms=None):
     11, and a least-squares fit through all 16) for the one-stage second-order
     step (384 bytes per atom; each order is more accurate than the one below
     at small steps until round-off takes over, and a better guess leaves the
-    solve fewer sweeps: ``benchmarks/predictor.py``; docs/benchmarks.md, "The
-    predictor's least-squares row"), fewer for the compositions (5 stages: 6 each,
+    solve fewer sweeps: ``benchmarks/predictor.py``; docs/benchmarks.md, "Why
+    each fast path exists"), fewer for the compositions (5 stages: 6 each,
     9 stages: 4 each): at most 36 arrays of (N, 3) for all stages, 864 bytes per
     atom, what order 6 kept before (4 per stage). Below
     :data:`LEAST_SQUARES_FROM` atoms 12 (no least-squares row). From
@@ -491,7 +491,7 @@ class CollectivePRK(SpinLatticeDynamics):
         threaded size (threads.SERIAL_BELOW atoms or more) whose colouring
         takes more than :data:`THREADED_COLOURS` colours. There every colour is
         a parallel region of its own, and more of them cost about what their
-        fewer sweeps save (docs/benchmarks.md, "Colour-ordered sweeps"). The
+        fewer sweeps save (docs/benchmarks.md, "Why each fast path exists"). The
         stages then keep index order for good and the full list is let go.
         Decided from the size and the lattice alone, never the threads: the
         same bits whatever their count."""

@@ -11,8 +11,8 @@ neighbours just beyond a term's cutoff then stays out of its list once thermal
 motion has spread it across the cutoff plus the skin, and every pass of the
 term (the midpoint sweeps, the force passes, the pair geometry) skips it. The
 finer skin exists only for that saving: ``benchmarks/bench_langevin.py --warmup
-300`` measures steps past the first rebuild (docs/benchmarks.md, "Steady state:
-the pair lists' fine skin").
+300`` measures steps past the first rebuild (docs/benchmarks.md, "Throughput
+and scaling").
 """
 
 from __future__ import annotations

@@ -97,7 +97,7 @@ def rows_in_order(row, nbr, c, order):
     their order. A colour-ordered sweep then reads each colour's rows as one
     stretch of memory instead of scattered over the list: a copy made only for
     speed (``benchmarks/frozen_before_after.py``; docs/benchmarks.md,
-    "Colour-ordered sweeps on a frozen lattice")."""
+    "Why each fast path exists")."""
     n = len(order)
     prow = np.zeros(n + 1, dtype=np.int64)
     for a in range(n):

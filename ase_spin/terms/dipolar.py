@@ -2,14 +2,14 @@
 spin/dipole/cut``, ``spin/dipole/long`` with ``kspace_style ewald/dipole/spin``):
 a plain cutoff, the direct sum over all pairs of an open system, and the Ewald
 sum of a fully periodic one with tin-foil boundary conditions or of a slab
-(periodic in two directions, the Yeh–Berkowitz correction). The k-space side
-is in :mod:`ase_spin.terms.dipolar_kspace`."""
+(periodic in two directions, the Yeh–Berkowitz correction), its reciprocal
+part summed over k-vectors (:mod:`ase_spin.terms.dipolar_kspace`) or on a
+mesh (smooth particle-mesh Ewald, :mod:`ase_spin.terms.dipolar_mesh`)."""
 
 from __future__ import annotations
 
 import math
 
-import numba as nb
 import numpy as np
 from ase import units
 
@@ -23,6 +23,21 @@ from .dipolar_kspace import (
     ewald_parameters,
     kvectors,
     slab_geometry,
+)
+from .dipolar_mesh import (
+    ORDERS,
+    MeshInfluence,
+    MeshReciprocal,
+    default_order,
+    mesh_size,
+)
+from .dipolar_pairs import (
+    cut_site,
+    direct_field,
+    direct_pass,
+    list_field,
+    list_pass,
+    pair_geometry,
 )
 from .lammps_form import LammpsKspace, LammpsPair, number_text
 
@@ -44,221 +59,21 @@ DIPOLAR_CODATA = units._mu0 / (4.0 * math.pi) * MU_B**2 * units._e * 1e30
 #: 2.3e-4 relative below :data:`DIPOLAR_CODATA`.
 DIPOLAR_LAMMPS = 9.274e-4**2 * 784.15 / (4.0 * math.pi)
 
-_METHODS = ("cut", "direct", "ewald")
-_TWO_OVER_SQRT_PI = 2.0 / math.sqrt(math.pi)
-
-
-# -- the pair functions -------------------------------------------------------
-
-@nb.njit(cache=True, inline="always")
-def _radial(r2, alpha):
-    r"""B1, B2, B3 of the (screened) dipole tensor at r² (α = 0: bare):
-
-    B0 = erfc(αr)/r,  B_l = [(2l − 1) B_{l−1} + (2α²)^l e^{−α²r²}/(α√π)] / r²,
-
-    so that B_l = −B'_{l−1}/r; bare, B1 = 1/r³, B2 = 3/r⁵, B3 = 15/r⁷."""
-    r = math.sqrt(r2)
-    inv2 = 1.0 / r2
-    if alpha == 0.0:
-        b1 = inv2 / r
-        b2 = 3.0 * b1 * inv2
-        return b1, b2, 5.0 * b2 * inv2
-    a2 = alpha * alpha
-    g = _TWO_OVER_SQRT_PI * alpha * math.exp(-a2 * r2)
-    b1 = (math.erfc(alpha * r) / r + g) * inv2
-    g *= 2.0 * a2
-    b2 = (3.0 * b1 + g) * inv2
-    g *= 2.0 * a2
-    return b1, b2, (5.0 * b2 + g) * inv2
-
-
-@nb.njit(cache=True, inline="always")
-def _pair(mi, mj, dx, dy, dz, b1, b2, b3, i, j):
-    """One pair's e = (m_i·m_j) B1 − (m_i·d)(m_j·d) B2 (times μ0μB²/4π: the
-    energy), g = ∂e/∂d = −(m_i·m_j) B2 d + (m_i·d)(m_j·d) B3 d
-    − B2 [(m_j·d) m_i + (m_i·d) m_j] (−g is the force on j), d = r_j − r_i."""
-    a = mi[i, 0] * dx + mi[i, 1] * dy + mi[i, 2] * dz
-    b = mj[j, 0] * dx + mj[j, 1] * dy + mj[j, 2] * dz
-    c = mi[i, 0] * mj[j, 0] + mi[i, 1] * mj[j, 1] + mi[i, 2] * mj[j, 2]
-    e = c * b1 - a * b * b2
-    radial = a * b * b3 - c * b2
-    gx = radial * dx - b2 * (b * mi[i, 0] + a * mj[j, 0])
-    gy = radial * dy - b2 * (b * mi[i, 1] + a * mj[j, 1])
-    gz = radial * dz - b2 * (b * mi[i, 2] + a * mj[j, 2])
-    return e, gx, gy, gz
-
-
-@nb.njit(cache=True, inline="always")
-def _add_pair_field(H, i, m, j, dx, dy, dz, b1, b2):
-    """H_i += −∂e/∂m_i = B2 (m_j·d) d − B1 m_j (the same for d → −d)."""
-    b = (m[j, 0] * dx + m[j, 1] * dy + m[j, 2] * dz) * b2
-    H[i, 0] += b * dx - b1 * m[j, 0]
-    H[i, 1] += b * dy - b1 * m[j, 1]
-    H[i, 2] += b * dz - b1 * m[j, 2]
-
-
-@nb.njit(cache=True, inline="always")
-def _cut_site(i, s, data):
-    """B_i = C μ_i Σ_j μ_j [B2 (s_j·d) d − B1 s_j] over a full pair list, from
-    the spins as they are (the sequential sweeps' field of ``"cut"``)."""
-    row, nbr, D, B, mu, pref = data
-    bx = 0.0
-    by = 0.0
-    bz = 0.0
-    for k in range(row[i], row[i + 1]):
-        j = nbr[k]
-        dx = D[k, 0]
-        dy = D[k, 1]
-        dz = D[k, 2]
-        b = (s[j, 0] * dx + s[j, 1] * dy + s[j, 2] * dz) * B[k, 1]
-        bx += mu[j] * (b * dx - B[k, 0] * s[j, 0])
-        by += mu[j] * (b * dy - B[k, 0] * s[j, 1])
-        bz += mu[j] * (b * dz - B[k, 0] * s[j, 2])
-    c = pref[0] * mu[i]
-    return c * bx, c * by, c * bz
-
-
-# -- passes over a pair list (cut, ewald real space) -----------------------------
-
-@nb.njit(cache=True)
-def _geometry(pos, row, nbr, image, images, rc2, alpha, D, B):
-    """For every pair k = (i → j): D_k = d_ij = r_j + S_k − r_i and
-    B_k = (B1, B2, B3)(r_ij) of :func:`_radial`; zero beyond rc (the list
-    carries a skin) or at r = 0."""
-    for i in range(len(row) - 1):
-        for k in range(row[i], row[i + 1]):
-            j = nbr[k]
-            m = image[k]
-            dx = (pos[j, 0] - pos[i, 0]) + images[m, 0]
-            dy = (pos[j, 1] - pos[i, 1]) + images[m, 1]
-            dz = (pos[j, 2] - pos[i, 2]) + images[m, 2]
-            r2 = dx * dx + dy * dy + dz * dz
-            D[k, 0] = dx
-            D[k, 1] = dy
-            D[k, 2] = dz
-            if r2 >= rc2 or r2 == 0.0:
-                B[k, 0] = B[k, 1] = B[k, 2] = 0.0
-            else:
-                B[k, 0], B[k, 1], B[k, 2] = _radial(r2, alpha)
-
-
-@nb.njit(cache=True)
-def _list_field(row, nbr, half, m, D, B, H):
-    """H_i += Σ_j [B2 (m_j·d_ij) d_ij − B1 m_j] over a pair list (a half list
-    also adds the pair's field on j)."""
-    for i in range(len(row) - 1):
-        for k in range(row[i], row[i + 1]):
-            j = nbr[k]
-            _add_pair_field(H, i, m, j, D[k, 0], D[k, 1], D[k, 2], B[k, 0], B[k, 1])
-            if half:
-                _add_pair_field(H, j, m, i, D[k, 0], D[k, 1], D[k, 2], B[k, 0], B[k, 1])
-
-
-@nb.njit(cache=True)
-def _list_pass(row, nbr, half, m, D, B, F, energies, want_f, want_e):
-    """Σ e (:func:`_pair`) over a pair list and its derivatives: F_j −= g,
-    F_i += g, e_i, e_j += ½e, W += sym(g ⊗ d) (Voigt xx yy zz yz xz xy). A
-    full list holds each pair twice: row i then adds to atom i alone, with
-    half of e and W. Returns (E, W...)."""
-    w = 1.0 if half else 0.5
-    v = np.zeros(7)
-    for i in range(len(row) - 1):
-        for k in range(row[i], row[i + 1]):
-            if B[k, 0] == 0.0:
-                continue
-            j = nbr[k]
-            dx = D[k, 0]
-            dy = D[k, 1]
-            dz = D[k, 2]
-            e, gx, gy, gz = _pair(m, m, dx, dy, dz, B[k, 0], B[k, 1], B[k, 2], i, j)
-            v[0] += w * e
-            v[1] += w * gx * dx
-            v[2] += w * gy * dy
-            v[3] += w * gz * dz
-            v[4] += 0.5 * w * (gy * dz + gz * dy)
-            v[5] += 0.5 * w * (gx * dz + gz * dx)
-            v[6] += 0.5 * w * (gx * dy + gy * dx)
-            if want_f:
-                F[i, 0] += gx
-                F[i, 1] += gy
-                F[i, 2] += gz
-                if half:
-                    F[j, 0] -= gx
-                    F[j, 1] -= gy
-                    F[j, 2] -= gz
-            if want_e:
-                energies[i] += 0.5 * e
-                if half:
-                    energies[j] += 0.5 * e
-    return v
-
-
-# -- the direct sum over all pairs (open systems) -------------------------------
-
-@nb.njit(cache=True)
-def _direct_field(pos, m, H):
-    """H_i += Σ_{j≠i} [3 (m_j·d) d/r⁵ − m_j/r³] over all pairs of magnetic atoms."""
-    n = pos.shape[0]
-    for i in range(n):
-        if m[i, 0] == 0.0 and m[i, 1] == 0.0 and m[i, 2] == 0.0:
-            continue
-        for j in range(i + 1, n):
-            if m[j, 0] == 0.0 and m[j, 1] == 0.0 and m[j, 2] == 0.0:
-                continue
-            dx = pos[j, 0] - pos[i, 0]
-            dy = pos[j, 1] - pos[i, 1]
-            dz = pos[j, 2] - pos[i, 2]
-            b1, b2, _ = _radial(dx * dx + dy * dy + dz * dz, 0.0)
-            _add_pair_field(H, i, m, j, dx, dy, dz, b1, b2)
-            _add_pair_field(H, j, m, i, dx, dy, dz, b1, b2)
-
-
-@nb.njit(cache=True)
-def _direct_pass(pos, m, F, energies, want_f, want_e):
-    """:func:`_list_pass` over all pairs i < j of magnetic atoms, bare."""
-    n = pos.shape[0]
-    v = np.zeros(7)
-    for i in range(n):
-        if m[i, 0] == 0.0 and m[i, 1] == 0.0 and m[i, 2] == 0.0:
-            continue
-        for j in range(i + 1, n):
-            if m[j, 0] == 0.0 and m[j, 1] == 0.0 and m[j, 2] == 0.0:
-                continue
-            dx = pos[j, 0] - pos[i, 0]
-            dy = pos[j, 1] - pos[i, 1]
-            dz = pos[j, 2] - pos[i, 2]
-            b1, b2, b3 = _radial(dx * dx + dy * dy + dz * dz, 0.0)
-            e, gx, gy, gz = _pair(m, m, dx, dy, dz, b1, b2, b3, i, j)
-            v[0] += e
-            v[1] += gx * dx
-            v[2] += gy * dy
-            v[3] += gz * dz
-            v[4] += 0.5 * (gy * dz + gz * dy)
-            v[5] += 0.5 * (gx * dz + gz * dx)
-            v[6] += 0.5 * (gx * dy + gy * dx)
-            if want_f:
-                F[i, 0] += gx
-                F[i, 1] += gy
-                F[i, 2] += gz
-                F[j, 0] -= gx
-                F[j, 1] -= gy
-                F[j, 2] -= gz
-            if want_e:
-                energies[i] += 0.5 * e
-                energies[j] += 0.5 * e
-    return v
+_METHODS = ("cut", "direct", "ewald", "pme")
 
 
 class _Bound:
     """What :meth:`Dipolar.bind` makes: the moments μ_i, the prefactor
     μ0μB²/4π (eV·Å³), and for the Ewald sum α, the k-vectors with A(k), the
-    volume and the self-term coefficient; for a slab its correction, normal
-    and height."""
+    volume and the self-term coefficient (for the mesh its
+    :class:`~ase_spin.terms.dipolar_mesh.MeshInfluence`); for a slab its
+    correction, normal and height."""
 
-    __slots__ = ("A", "alpha", "height", "k", "mu", "pref", "self_coef", "slab", "volume")
+    __slots__ = ("A", "alpha", "height", "k", "mesh", "mu", "pref", "self_coef", "slab",
+                 "volume")
 
     def __init__(self, mu, pref, alpha=0.0, k=None, A=None, volume=None, self_coef=0.0,
-                 slab=None, height=None):
+                 slab=None, height=None, mesh=None):
         self.mu = mu
         self.pref = pref
         self.alpha = alpha
@@ -268,6 +83,7 @@ class _Bound:
         self.self_coef = self_coef
         self.slab = slab
         self.height = height
+        self.mesh = mesh  # the MeshInfluence of method="pme"
 
 
 _NO_ROWS = np.zeros((0, 3))
@@ -298,6 +114,9 @@ class DipolarOperator(SpinOperator):
             return ("the Ewald field of one spin is a sum over every k-vector, as dear as "
                     "the whole field, so a sweep would cost O(N²K); use CollectivePRK, "
                     "or Dipolar(method='cut')")
+        if self.method == "pme":
+            return ("the mesh field of one spin costs a whole mesh convolution, so a sweep "
+                    "would cost O(N² log N); use CollectivePRK, or Dipolar(method='cut')")
         if self.method == "direct":
             return ("the direct sum's field of one spin runs over every atom (a sweep "
                     "O(N²)); use CollectivePRK, or Dipolar(method='cut')")
@@ -310,7 +129,7 @@ class DipolarOperator(SpinOperator):
         if self.method != "cut" or self.pairs.half:
             return None
         b = self.bound
-        return _cut_site, (self.pairs.row, self.pairs.j, self.D, self.B, b.mu,
+        return cut_site, (self.pairs.row, self.pairs.j, self.D, self.B, b.mu,
                            np.array([b.pref]))
 
     def _moments(self, W):
@@ -320,10 +139,10 @@ class DipolarOperator(SpinOperator):
         """H = −∂E/∂m (eV/μB) at moments m."""
         H = np.zeros_like(m)
         if self.method == "direct":
-            _direct_field(self.pos, m, H)
+            direct_field(self.pos, m, H)
         else:
             p = self.pairs
-            _list_field(p.row, p.j, p.half, m, self.D, self.B, H)
+            list_field(p.row, p.j, p.half, m, self.D, self.B, H)
         if self.recip is not None:
             self.recip.field(m, H)
             H -= (2.0 * self.bound.self_coef) * m  # −∂/∂m of self_coef |m|²
@@ -350,10 +169,10 @@ class DipolarOperator(SpinOperator):
         F = np.zeros_like(m) if want.forces else _NO_ROWS
         e_i = np.zeros(len(m)) if want.energies else _NO_ENERGIES
         if self.method == "direct":
-            v = _direct_pass(self.pos, m, F, e_i, want.forces, want.energies)
+            v = direct_pass(self.pos, m, F, e_i, want.forces, want.energies)
         else:
             p = self.pairs
-            v = _list_pass(p.row, p.j, p.half, m, self.D, self.B, F, e_i, want.forces,
+            v = list_pass(p.row, p.j, p.half, m, self.D, self.B, F, e_i, want.forces,
                            want.energies)
         energy, virial = v[0], v[1:].copy()
         H = None
@@ -368,7 +187,7 @@ class DipolarOperator(SpinOperator):
             if need_field:
                 p = self.pairs
                 Hreal = np.zeros_like(m)
-                _list_field(p.row, p.j, p.half, m, self.D, self.B, Hreal)
+                list_field(p.row, p.j, p.half, m, self.D, self.B, Hreal)
                 H = Hreal.copy()
             Ek, Wk = self.recip.add(m, H, F, need_field, want.forces, want.virial)
             m2 = np.einsum("ij,ij->i", m, m)
@@ -432,6 +251,15 @@ class Dipolar(SpinTerm):
       sum runs in a cell ``slab`` times as high (default 3, LAMMPS's
       ``kspace_modify slab``), with the Yeh–Berkowitz correction
       (:class:`~ase_spin.terms.dipolar_kspace.SlabCorrection`).
+    - ``"pme"``: the same Ewald sum (same α, real-space part, boundaries and
+      slabs), its reciprocal part by smooth particle-mesh Ewald
+      (:mod:`~ase_spin.terms.dipolar_mesh`): B-splines of order ``order``
+      (4 … 12; None: 8 for ``accuracy`` ≥ 1e-5, else 10, the cheaper
+      measured) on a mesh of ``mesh`` = (K1, K2, K3) points along
+      the cell vectors, FFTs, O(N log N) per evaluation. ``mesh=None``
+      chooses it from ``accuracy``
+      (:func:`~ase_spin.terms.dipolar_mesh.mesh_size`: every k-vector within
+      k_c, and the interpolation error estimate within ``accuracy``).
 
     ``prefactor``: μ0 μB²/4π in eV·Å³; None (default) follows the
     Hamiltonian's conventions: :data:`DIPOLAR_CODATA` (physical), LAMMPS's
@@ -450,10 +278,11 @@ class Dipolar(SpinTerm):
     neighbor_list = "half"
 
     _parameters = {"rc": "rc", "method": "method", "accuracy": "accuracy", "alpha": "alpha",
-                   "kcut": "kcut", "slab": "slab", "prefactor": "prefactor"}
+                   "kcut": "kcut", "slab": "slab", "mesh": "mesh", "order": "order",
+                   "prefactor": "prefactor"}
 
     def __init__(self, rc=None, method="cut", *, accuracy=1e-6, alpha=None, kcut=None,
-                 slab=None, prefactor=None):
+                 slab=None, mesh=None, order=None, prefactor=None):
         if method not in _METHODS:
             raise ValueError(f"Dipolar method must be one of {_METHODS}, got {method!r}")
         self.method = method
@@ -473,10 +302,12 @@ class Dipolar(SpinTerm):
             raise ValueError(f"Dipolar accuracy must be below 1, got {self.accuracy}")
         self.alpha = None if alpha is None else positive_scalar(alpha, "Dipolar alpha")
         self.kcut = None if kcut is None else positive_scalar(kcut, "Dipolar kcut")
+        self._mesh_settings(mesh, order)
         self.slab = None
         if slab is not None:
-            if method != "ewald":
-                raise ValueError(f"Dipolar slab= is a setting of method='ewald', not {method!r}")
+            if method not in ("ewald", "pme"):
+                raise ValueError("Dipolar slab= is a setting of method='ewald' or 'pme', not "
+                                 f"{method!r}")
             self.slab = positive_scalar(slab, "Dipolar slab")
             if not self.slab >= 2.0:
                 raise ValueError("Dipolar slab (the Ewald cell's height over the slab's) must "
@@ -485,9 +316,47 @@ class Dipolar(SpinTerm):
                           else positive_scalar(prefactor, "Dipolar prefactor"))
         self._finish()
 
+    def _mesh_settings(self, mesh, order):
+        if order is not None:
+            if isinstance(order, bool) or not hasattr(order, "__index__"):
+                raise TypeError("Dipolar order (of the mesh's B-splines) must be a whole "
+                                f"number, got {order!r}")
+            if int(order) not in ORDERS:
+                raise ValueError(f"Dipolar order must lie between {ORDERS[0]} and "
+                                 f"{ORDERS[-1]}, got {order}")
+            if self.method != "pme":
+                raise ValueError(f"Dipolar order= is a setting of method='pme', not "
+                                 f"{self.method!r}")
+            order = int(order)
+        self.order = order
+        if mesh is not None:
+            if self.method != "pme":
+                raise ValueError(f"Dipolar mesh= is a setting of method='pme', not "
+                                 f"{self.method!r}")
+            points = np.broadcast_to(np.asarray(mesh), (3,)) if np.ndim(mesh) == 0 else mesh
+            points = np.asarray(points)
+            if (points.shape != (3,) or points.dtype.kind not in "iu"
+                    or not np.all(points >= self.spline_order)):
+                raise ValueError(f"Dipolar mesh must be one or three whole numbers of mesh "
+                                 f"points, each at least the order {self.spline_order}; got "
+                                 f"{mesh!r}")
+            mesh = tuple(int(K) for K in points)
+            if self.kcut is not None:
+                raise ValueError("Dipolar: give the mesh's kcut= (the k-vectors it must hold) "
+                                 "or mesh=, not both")
+        self.mesh = mesh
+
+    @property
+    def spline_order(self):
+        """The B-spline order of ``method="pme"``: ``order``, or where None the
+        cheaper for the accuracy (:func:`~ase_spin.terms.dipolar_mesh.default_order`)."""
+        return default_order(self.accuracy) if self.order is None else self.order
+
     def __repr__(self):
         extra = (f", accuracy={self.accuracy}, alpha={self.alpha}, kcut={self.kcut}, "
-                 f"slab={self.slab}" if self.method == "ewald" else "")
+                 f"slab={self.slab}" if self.method in ("ewald", "pme") else "")
+        if self.method == "pme":
+            extra += f", mesh={self.mesh}, order={self.order}"
         return f"Dipolar(rc={self.rc}, method={self.method!r}{extra}, prefactor={self.prefactor})"
 
     def splitting(self):
@@ -522,21 +391,34 @@ class Dipolar(SpinTerm):
         if pbc == (True, True, False):
             cell, normal, height = slab_geometry(cell, 3.0 if self.slab is None else self.slab)
         elif pbc != (True, True, True):
-            raise ValueError("Dipolar(method='ewald') needs a periodic cell in all three "
+            raise ValueError(f"Dipolar(method={self.method!r}) needs a periodic cell in all three "
                              "directions, or a slab periodic in the first two (pbc=[True, "
                              f"True, False]); got pbc={list(pbc)}")
         elif self.slab is not None:
             raise ValueError(f"Dipolar slab={self.slab} is for slabs (pbc=[True, True, False]); "
                              "this cell is periodic in all three directions")
         alpha, kcut = self.splitting()
-        k = kvectors(cell, kcut)
-        k2 = np.einsum("ij,ij->i", k, k)
-        A = np.exp(-k2 / (4.0 * alpha * alpha)) / k2
         self_coef = -2.0 * alpha**3 / (3.0 * math.sqrt(math.pi))
         volume = abs(np.linalg.det(cell))
         if height is not None:
             slab = SlabCorrection(volume, normal)
+        if self.method == "pme":
+            mesh = self.mesh_size(cell)
+            return _Bound(mu, pref, alpha, volume=volume, self_coef=self_coef, slab=slab,
+                          height=height, mesh=MeshInfluence(cell, mesh, self.spline_order, alpha))
+        k = kvectors(cell, kcut)
+        k2 = np.einsum("ij,ij->i", k, k)
+        A = np.exp(-k2 / (4.0 * alpha * alpha)) / k2
         return _Bound(mu, pref, alpha, k, A, volume, self_coef, slab, height)
+
+    def mesh_size(self, cell):
+        """The mesh (K1, K2, K3) of ``method="pme"`` for the Ewald cell ``cell``:
+        ``mesh`` as given, else :func:`~ase_spin.terms.dipolar_mesh.mesh_size`
+        from α, k_c, ``accuracy`` and ``order``."""
+        if self.mesh is not None:
+            return self.mesh
+        alpha, kcut = self.splitting()
+        return mesh_size(cell, alpha, kcut, self.accuracy, self.spline_order)
 
     def prepare(self, positions, pairs, types, bound, *, virial=False, out=None,
                 mean_with=None):
@@ -557,11 +439,13 @@ class Dipolar(SpinTerm):
         n = len(pairs)
         D = np.empty((n, 3))
         B = np.empty((n, 3))
-        _geometry(positions, pairs.row, pairs.j, pairs.image, pairs.images, self.rc**2,
+        pair_geometry(positions, pairs.row, pairs.j, pairs.image, pairs.images, self.rc**2,
                   bound.alpha, D, B)
         recip = None
         if self.method == "ewald":
             recip = Reciprocal(positions, bound.k, bound.A, bound.volume, bound.alpha)
+        elif self.method == "pme":
+            recip = MeshReciprocal(positions, bound.mesh)
         return DipolarOperator(bound, self.method, pairs, D, B, None, recip, mean_with)
 
     def lammps(self, types):
@@ -571,12 +455,18 @@ class Dipolar(SpinTerm):
         length; LAMMPS keeps those in the sphere of the largest of them) and,
         for a slab, ``slab factor``. LAMMPS's constant is fixed
         (:data:`DIPOLAR_LAMMPS`; 785.15/784.15 of it in ``ewald/dipole/spin``):
-        another prefactor is warned about. The direct sum has no counterpart."""
+        another prefactor is warned about. The direct sum has no counterpart;
+        the mesh (``"pme"``) is not exported (NotImplementedError says why)."""
         if self.method == "direct":
             raise NotImplementedError(
                 "Dipolar(method='direct') sums every pair of an open system, which no LAMMPS "
                 "style does; use method='cut' with rc beyond the system's size "
                 "(spin/dipole/cut), the same sum")
+        if self.method == "pme":
+            raise NotImplementedError(
+                "Dipolar(method='pme') is not exported: LAMMPS's pppm/dipole/spin is P3M with "
+                "its own mesh and influence function, the same sum only to both accuracies; "
+                "export method='ewald' (ewald/dipole/spin) with the same rc and accuracy")
         pref = self._prefactor(types.conventions)
         if abs(pref / DIPOLAR_LAMMPS - 1.0) > 1e-12:
             warn_user(f"Dipolar's prefactor {pref:.10g} eV·Å³ is not LAMMPS's fixed "

@@ -19,7 +19,7 @@ from ..._jit.threads import threaded
 #: solve takes one sweep less per factor 1/θ (θ the contraction per sweep). The
 #: deep history and the least-squares row exist only to save sweeps:
 #: ``benchmarks/predictor.py`` shows each row's miss and the step's cost
-#: (docs/benchmarks.md, "The predictor's least-squares row"). Rows 12–14 are
+#: (docs/benchmarks.md, "Why each fast path exists"). Rows 12–14 are
 #: order 11 again: what the last row falls back to while fewer than 16
 #: increments are kept (exact orders 12–14 would only amplify the noise more).
 PREDICTOR_DEPTH = 16
