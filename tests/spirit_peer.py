@@ -156,29 +156,20 @@ llg_output_final 0
 """
 
 
-class SpiritHeisenberg:
-    """A Spirit state of n³ spins (simple cubic, lattice constant ``a`` Å, periodic,
-    nearest-neighbour exchange ``J_meV``, moments ``mu`` μB) and the same scene as
-    ASE Atoms (:meth:`atoms`). Runs restart from the spins given.
+class _SpiritState:
+    """A Spirit state made from a config text, deleted by :meth:`close` (or
+    on leaving a ``with`` block); ``positions`` Spirit's, in Å."""
 
-    Spirit looks for a file named ``STOP`` in the working directory at the start
-    of every run: run it where there is none. Use as a context manager, or call
-    :meth:`close`.
-    """
+    p = None
 
-    def __init__(self, n, a=2.5, J_meV=10.0, mu=2.0):
-        if int(n) != n or n < 3:
-            raise ValueError(f"n must be a whole number ≥ 3 (n³ spins, periodic), got {n!r}")
+    def _setup(self, config):
         self.sp = load_spirit()
-        self.n, self.a, self.J_meV, self.mu = int(n), float(a), float(J_meV), float(mu)
         with tempfile.TemporaryDirectory() as work:
-            path = Path(work) / "sc.cfg"
-            path.write_text(_config(self.n, self.a, self.J_meV, self.mu))
+            path = Path(work) / "spirit.cfg"
+            path.write_text(config)
             with _quiet_stdout():
                 self.p = self.sp.state.setup(str(path), quiet=True)
         self.nos = self.sp.system.get_nos(self.p)
-        if self.nos != self.n**3:
-            raise RuntimeError(f"Spirit made {self.nos} spins, not {self.n**3}")
         self.positions = np.array(self.sp.geometry.get_positions(self.p), dtype=float)
 
     def __enter__(self):
@@ -192,6 +183,25 @@ class SpiritHeisenberg:
             with _quiet_stdout():
                 self.sp.state.delete(self.p)
             self.p = None
+
+
+class SpiritHeisenberg(_SpiritState):
+    """A Spirit state of n³ spins (simple cubic, lattice constant ``a`` Å, periodic,
+    nearest-neighbour exchange ``J_meV``, moments ``mu`` μB) and the same scene as
+    ASE Atoms (:meth:`atoms`). Runs restart from the spins given.
+
+    Spirit looks for a file named ``STOP`` in the working directory at the start
+    of every run: run it where there is none. Use as a context manager, or call
+    :meth:`close`.
+    """
+
+    def __init__(self, n, a=2.5, J_meV=10.0, mu=2.0):
+        if int(n) != n or n < 3:
+            raise ValueError(f"n must be a whole number ≥ 3 (n³ spins, periodic), got {n!r}")
+        self.n, self.a, self.J_meV, self.mu = int(n), float(a), float(J_meV), float(mu)
+        self._setup(_config(self.n, self.a, self.J_meV, self.mu))
+        if self.nos != self.n**3:
+            raise RuntimeError(f"Spirit made {self.nos} spins, not {self.n**3}")
 
     # -- the same scene in ase_spin ----------------------------------------------
 
@@ -316,7 +326,7 @@ def _film_config(shape, boundaries, a, J_meV, D_meV, K_meV, field_T, mu, converg
         "gneb_n_iterations_log 2000000000\ngneb_output_any 0\n"
 
 
-class SpiritFilm:
+class SpiritFilm(_SpiritState):
     """A Spirit state of a square lattice of nx × ny × nz spins (lattice
     constant ``a`` Å; ``periodic``: Spirit's boundary conditions per axis)
     with nearest-neighbour exchange J, interfacial (Néel) DMI D, uniaxial
@@ -332,32 +342,12 @@ class SpiritFilm:
 
     def __init__(self, shape, periodic=(True, True, False), a=2.5, J_meV=10.0, D_meV=0.0,
                  K_meV=0.0, field_T=0.0, mu=2.0, convergence_meV=1e-7):
-        self.sp = load_spirit()
         self.shape = tuple(int(k) for k in shape)
         self.periodic = tuple(bool(p) for p in periodic)
         self.a, self.J_meV, self.D_meV = float(a), float(J_meV), float(D_meV)
         self.K_meV, self.field_T, self.mu = float(K_meV), float(field_T), float(mu)
-        with tempfile.TemporaryDirectory() as work:
-            path = Path(work) / "film.cfg"
-            path.write_text(_film_config(self.shape, self.periodic, self.a, self.J_meV,
-                                         self.D_meV, self.K_meV, self.field_T, self.mu,
-                                         float(convergence_meV)))
-            with _quiet_stdout():
-                self.p = self.sp.state.setup(str(path), quiet=True)
-        self.nos = self.sp.system.get_nos(self.p)
-        self.positions = np.array(self.sp.geometry.get_positions(self.p), dtype=float)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-    def close(self):
-        if self.p is not None:
-            with _quiet_stdout():
-                self.sp.state.delete(self.p)
-            self.p = None
+        self._setup(_film_config(self.shape, self.periodic, self.a, self.J_meV, self.D_meV,
+                                 self.K_meV, self.field_T, self.mu, float(convergence_meV)))
 
     def atoms(self, spins):
         """ASE Atoms at Spirit's positions with ``spins`` and this Hamiltonian

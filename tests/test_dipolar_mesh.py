@@ -9,9 +9,8 @@ its refusals."""
 import numpy as np
 import pytest
 from ase import units
-from conftest import CO_BS, CO_LJ, random_spins
-from test_calculator import fd_forces, fd_magnetic_forces, fd_stress
-from test_dipolar import EVERYTHING, _bound, _cobalt, _scene, _unit
+from conftest import CO_BS, CO_LJ
+from test_dipolar import _bound, _cobalt, _scene, _unit
 
 import ase_spin
 from ase_spin import (
@@ -94,51 +93,6 @@ def test_accuracy_knob_chooses_a_mesh_that_keeps_it(accuracy, rc, order):
     alpha, kcut = Dipolar(rc, "pme", accuracy=accuracy).splitting()
     coarse = mesh_size(atoms.cell.array, alpha, kcut, 100 * accuracy, order)
     assert np.prod(coarse) < np.prod(mesh_size(atoms.cell.array, alpha, kcut, accuracy, order))
-
-
-@pytest.mark.parametrize("scene,make", [
-    ("triclinic", lambda: Dipolar(5.0, "pme", accuracy=1e-4, order=8)),
-    ("tiny2", lambda: Dipolar(4.0, "pme", mesh=(10, 12, 9), order=5)),
-    ("slab", lambda: Dipolar(4.0, "pme", accuracy=1e-4, slab=2.5, order=8))],
-    ids=["triclinic", "tiny2-mesh", "slab"])
-def test_mesh_derivatives_match_finite_differences(scene, make):
-    atoms, mu = _scene(scene)
-    ev = _bound(make(), atoms, mu)
-    q, s = atoms.positions, _unit(atoms.get_initial_magnetic_moments())
-    res = ev.evaluate(q, s, EVERYTHING)
-    F, B = fd_forces(ev, q, s, h=1e-4), fd_magnetic_forces(ev, q, s, h=1e-4)
-    assert np.abs(res.forces - F).max() < 1e-7 * np.abs(F).max()
-    assert np.abs(res.magnetic_forces - B).max() < 1e-9 * np.abs(B).max()
-    assert res.energies.sum() == pytest.approx(res.energy, rel=1e-12)
-    atoms.calc = SpinLatticeCalculator([make()])
-    S, Sfd = atoms.get_stress(), fd_stress(atoms, h=1e-5)
-    assert np.abs(S - Sfd).max() < 1e-7 * np.abs(Sfd).max()
-
-
-def test_mesh_operators_give_the_direct_evaluation(rng):
-    atoms, mu = _scene("triclinic")
-    ev = _bound(Dipolar(5.0, "pme", accuracy=1e-5, order=6), atoms, mu)
-    q = atoms.positions
-    s = random_spins(len(atoms), rng)
-    whole = ev.evaluate(q, s, EVERYTHING)
-    ops = ev.spin_operators(q, virial=True)
-    part = ev.spin(ops, s, EVERYTHING)
-    assert part.energy == pytest.approx(whole.energy, rel=1e-12)
-    for name in ("forces", "energies", "virial", "magnetic_forces"):
-        np.testing.assert_allclose(getattr(part, name), getattr(whole, name), rtol=1e-11,
-                                   atol=1e-13 * np.abs(getattr(whole, name)).max())
-    B = np.zeros_like(s)
-    ops[0].field(s, B)
-    np.testing.assert_allclose(B, whole.magnetic_forces, rtol=1e-12, atol=1e-20)
-    q2 = q + 0.05 * rng.normal(size=q.shape)
-    ev.refresh(q2, also=q)
-    here = ev.spin_operators(q, refreshed=True)
-    there = ev.spin_operators(q2, mean_with=here, refreshed=True)
-    Bq, Bq2, Bm = np.zeros_like(s), np.zeros_like(s), np.zeros_like(s)
-    here[0].field(s, Bq)
-    there[0].field(s, Bq2)
-    there[0].field(s, Bm, mean=True)
-    np.testing.assert_allclose(Bm, 0.5 * (Bq + Bq2), rtol=1e-12, atol=1e-20)
 
 
 def test_mesh_is_translation_invariant_within_its_accuracy():
