@@ -213,6 +213,27 @@ def test_a_term_exported_by_the_package_is_usable_by_name(tmp_path, monkeypatch)
     np.testing.assert_array_equal(terms[-1].H, [0, 0, 40])
 
 
+def test_a_long_range_dipolar_term_from_the_input_file(tmp_path):
+    """Dipolar with its keywords (method, accuracy, mesh order) from a [[terms]] table:
+    the same term, and the same energy and field, as built in a script."""
+    dipolar = '[[terms]]\ntype = "Dipolar"\nrc = 5.0\nmethod = "pme"\naccuracy = 1e-5\norder = 6\n'
+    text = SCENE.format(integrator="CollectivePRK", timestep=0.5, steps=0, interval=1,
+                        extra="").replace("[calculator]", dipolar + "\n[calculator]")
+    atoms = cli.build_scene(cli.load_input(write_input(tmp_path, text=text)))
+    term = atoms.calc.hamiltonian.terms[-1]
+    assert isinstance(term, ase_spin.Dipolar)
+    assert (term.method, term.accuracy, term.spline_order) == ("pme", 1e-5, 6)
+    alone = atoms.copy()
+    alone.calc = ase_spin.SpinLatticeCalculator([ase_spin.Dipolar(5.0, "pme", accuracy=1e-5,
+                                                                  order=6)])
+    alone_energy = alone.get_potential_energy()
+    assert alone_energy != 0.0
+    atoms.calc = ase_spin.SpinLatticeCalculator([term])
+    assert atoms.get_potential_energy() == alone_energy
+    np.testing.assert_array_equal(atoms.calc.get_magnetic_forces(atoms),
+                                  alone.calc.get_magnetic_forces(alone))
+
+
 @pytest.mark.parametrize("change, message", [
     (('type = "Zeeman"', 'type = "Zeman"'),
      "unknown type 'Zeman' (did you mean 'Zeeman'?); choose one of"),
