@@ -3,6 +3,7 @@ or the --out they are given, never docs/figures unless asked), and files they re
 as written exist. Each runs as a separate process in an empty folder."""
 
 import importlib.util
+import math
 import os
 import re
 import subprocess
@@ -136,3 +137,43 @@ def test_skyrmion_barrier_with_the_lattice_free(tmp_path):
     frozen, free = (float(x) for x in found.groups())
     assert frozen > 1.0 and abs(free - frozen) < 0.1 * frozen
     assert files_in(tmp_path) == ["lattice", "lattice/skyrmion_barrier.png"]
+
+
+def test_dipolar_film_without_anisotropy_turns_into_the_plane(tmp_path):
+    """K_u = 0: the three-plane Fe film falls from 45° off the normal into the plane
+    (within 2°, m_z < sin 2°), releasing the energy its statics predict,
+    (E⊥ − E∥) cos²45° per atom, to 1% (what is left at 2° from the plane is
+    (E⊥ − E∥) cos²88° ~ 2e-3 of it; without the slab's shape term nothing would
+    turn); the monolayer's E⊥ − E∥ is the exact square-lattice sum. The 5 fs step
+    (the uniform mode turns in tens of ps; the TimestepWarning is about the
+    exchange field's rate, which a uniform state does not feel) keeps it short."""
+    pytest.importorskip("matplotlib")
+    done = run("dipolar_film.py", "--ku", "0", "--tilt", "45", "--time", "25", "--timestep",
+               "5", "--out", "film.png", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    m_z = float(re.search(r"m_z = (\S+),", done.stdout).group(1))
+    assert abs(m_z) < math.sin(math.radians(2.0)) and "in-plane, as expected" in done.stdout
+    found = re.search(r"energy released (\S+) meV per atom, the statics' (\S+)", done.stdout)
+    released, statics = (float(x) for x in found.groups())
+    assert statics > 0.0 and abs(released / statics - 1.0) < 0.01
+    assert float(re.search(r"monolayer.*relative difference (\S+)\)", done.stdout)
+                 .group(1)) < 1e-9
+    assert files_in(tmp_path) == ["film.png"]
+    assert reported(done.stdout, tmp_path) == [tmp_path / "film.png"]
+
+
+@pytest.mark.slow
+def test_dipolar_film_default_run_turns_one_film_and_keeps_the_other(tmp_path):
+    """The default run: K_u = 0 ends in-plane, K_u = 0.2 meV (above the film's
+    shape anisotropy, 0.12 meV per atom) back along the normal, each with the
+    energy the statics predict to 1%; its figure goes into the folder given."""
+    pytest.importorskip("matplotlib")
+    done = run("dipolar_film.py", "--out", "figures", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert "in-plane, as expected" in done.stdout
+    assert "perpendicular, as expected" in done.stdout and "NOT" not in done.stdout
+    for found in re.finditer(r"energy released (\S+) meV per atom, the statics' (\S+)",
+                             done.stdout):
+        released, statics = (float(x) for x in found.groups())
+        assert abs(released / statics - 1.0) < 0.01
+    assert files_in(tmp_path) == ["figures", "figures/dipolar_film.png"]
