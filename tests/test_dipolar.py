@@ -540,31 +540,40 @@ def test_exported_decks_run_in_lammps(tmp_path):
     """The decks write_lammps makes run in LAMMPS: ``spin/dipole/cut`` to
     round-off; ``ewald/dipole/spin`` with its k-space prefactor and no
     real-space pairs (see test_ewald_reciprocal_part_agrees_with_lammps) to
-    round-off, with the α and k-vectors of the deck; and a slab, where LAMMPS
-    2025.7.22 adds 2π(M·ẑ)²/12V' where Yeh and Berkowitz have 2π(M·ẑ)²/V'
-    (its field, −4π(M·ẑ)ẑ/V', is of the latter)."""
+    round-off, with the α and k-vectors of the deck; ``pppm/dipole/spin`` (the
+    mesh, order 7 as LAMMPS's highest) to its accuracy (P3M and ours on the
+    same mesh; test_dipolar_mesh compares them further); and slabs, where
+    LAMMPS 2025.7.22 adds 2π(M·ẑ)²/12V' where Yeh and Berkowitz have
+    2π(M·ẑ)²/V' (its field, −4π(M·ẑ)ẑ/V', is of the latter), in both
+    k-space styles."""
     atoms = _cobalt()
-    for term in (Dipolar(5.0, prefactor=DIPOLAR_LAMMPS),
-                 Dipolar(1.0, "ewald", alpha=0.6, kcut=_lammps_kcut(atoms, 6),
-                         prefactor=DIPOLAR_LAMMPS_KSPACE)):
+    for term, rel in ((Dipolar(5.0, prefactor=DIPOLAR_LAMMPS), 1e-13),
+                      (Dipolar(1.0, "ewald", alpha=0.6, kcut=_lammps_kcut(atoms, 6),
+                               prefactor=DIPOLAR_LAMMPS_KSPACE), 1e-13),
+                      (Dipolar(1.0, "pme", alpha=0.6, accuracy=1e-5, order=7,
+                               prefactor=DIPOLAR_LAMMPS_KSPACE), 1e-5)):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the k-space prefactor is not the pair styles'
             write_lammps(tmp_path, atoms, hamiltonian=[term], timestep=0.1 * units.fs)
         atoms.calc = SpinLatticeCalculator([term])
-        assert _run_deck(tmp_path) == pytest.approx(atoms.get_potential_energy(), rel=1e-13)
+        assert _run_deck(tmp_path) == pytest.approx(atoms.get_potential_energy(), rel=rel)
     film = _film(3, 2.5, 2.0, vacuum=3.0)
     set_spins(film, _unit([[0.3, 0.1, 1.0], [0.0, -0.2, 1.0], [0.1, 0.0, 1.0]]), 2.0)
     kcut = 2 * np.pi / 2.5 * 4 * (1 + 1e-9)  # LAMMPS's sphere: kmax 4 along x
-    term = Dipolar(1.0, "ewald", alpha=0.9, kcut=kcut, slab=3.0, prefactor=DIPOLAR_LAMMPS_KSPACE)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        files = write_lammps(tmp_path, film, hamiltonian=[term], timestep=0.1 * units.fs)
-    film.calc = SpinLatticeCalculator([term])
     M = (2.0 * ase_spin.get_spins(film)).sum(axis=0)
     volume = film.get_volume() * 3.0
     slab = DIPOLAR_LAMMPS_KSPACE * 2 * np.pi * M[2] ** 2 / volume
-    lammps_energy = _run_deck(files.directory)
-    assert lammps_energy == pytest.approx(film.get_potential_energy() - slab * 11 / 12, rel=1e-12)
+    for term, rel in ((Dipolar(1.0, "ewald", alpha=0.9, kcut=kcut, slab=3.0,
+                               prefactor=DIPOLAR_LAMMPS_KSPACE), 1e-12),
+                      (Dipolar(1.0, "pme", alpha=0.5, accuracy=1e-5, order=7, slab=3.0,
+                               prefactor=DIPOLAR_LAMMPS_KSPACE), 1e-5)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            files = write_lammps(tmp_path, film, hamiltonian=[term], timestep=0.1 * units.fs)
+        film.calc = SpinLatticeCalculator([term])
+        lammps_energy = _run_deck(files.directory)
+        assert lammps_energy == pytest.approx(film.get_potential_energy() - slab * 11 / 12,
+                                              rel=rel)
 
 
 @pytest.mark.parametrize("make,why", [

@@ -3,18 +3,23 @@ particle-mesh Ewald): it converges to the k-vector Ewald sum as the mesh is
 refined (at the B-spline order's rate), the accuracy knob chooses a mesh
 that keeps its promise, its derivatives are those of its energy (finite
 differences), it does not depend on where the atoms sit on the mesh beyond
-the accuracy, slabs, the prepared operators, a short spin–lattice run, and
-its refusals."""
+the accuracy, slabs, the prepared operators, a short spin–lattice run, its
+refusals, and its export as LAMMPS's ``pppm/dipole/spin`` (agreement to both
+methods' accuracies, skipped without lammps)."""
+
+import warnings
 
 import numpy as np
 import pytest
 from ase import units
 from conftest import CO_BS, CO_LJ
-from test_dipolar import _bound, _cobalt, _scene, _unit
+from lammps_peer import EV_PER_FM, LammpsSpin, lammps_available
+from test_dipolar import DIPOLAR_LAMMPS_KSPACE, _bound, _cobalt, _film, _scene, _unit
 
 import ase_spin
 from ase_spin import (
     DIPOLAR_CODATA,
+    DIPOLAR_LAMMPS,
     BetheSlater,
     CollectivePRK,
     Dipolar,
@@ -22,8 +27,10 @@ from ase_spin import (
     LennardJones,
     SpinLatticeCalculator,
     Want,
+    set_spins,
 )
-from ase_spin.terms.dipolar_kspace import ewald_parameters
+from ase_spin.terms.dipolar import LAMMPS_PPPM_MAX_ORDER
+from ase_spin.terms.dipolar_kspace import ewald_parameters, slab_geometry
 from ase_spin.terms.dipolar_mesh import bspline_weights, mesh_size, mesh_spacing
 
 C = DIPOLAR_CODATA
@@ -177,11 +184,154 @@ def test_mesh_settings_are_checked():
     assert term.order == 6
 
 
-def test_write_lammps_refuses_the_mesh_saying_why(tmp_path):
-    atoms = _cobalt(1)
-    atoms.calc = SpinLatticeCalculator([Dipolar(3.5, "pme")])
-    with pytest.raises(NotImplementedError, match="pppm/dipole/spin"):
-        ase_spin.write_lammps(tmp_path / "deck", atoms, timestep=0.1 * units.fs)
+def _kspace_lines(tmp_path, atoms, term):
+    """The ``kspace_*`` lines of write_lammps's deck of ``term``."""
+    files = ase_spin.write_lammps(tmp_path / "deck", atoms, hamiltonian=[term],
+                                  timestep=0.1 * units.fs)
+    return [line for line in files.input.read_text().splitlines()
+            if line.startswith("kspace_")]
+
+
+def test_write_lammps_exports_the_mesh_as_pppm(tmp_path):
+    """pppm/dipole/spin with our α, mesh and order; an order above LAMMPS's
+    highest becomes that one on the mesh chosen for it at the same accuracy
+    (a given mesh kept), with a warning naming both; slabs; and the
+    orthogonal boxes LAMMPS's dipolar k-space styles ask for."""
+    atoms = _cobalt(2)
+    term = Dipolar(4.0, "pme", accuracy=1e-4, order=6, prefactor=DIPOLAR_LAMMPS)
+    alpha, _ = term.splitting()
+    K = term.mesh_size(atoms.cell.array)
+    assert _kspace_lines(tmp_path, atoms, term) == [
+        "kspace_style pppm/dipole/spin 0.0001",
+        f"kspace_modify gewald {alpha!r} mesh {K[0]} {K[1]} {K[2]} order 6"]
+    term = Dipolar(4.0, "pme", accuracy=1e-4, prefactor=DIPOLAR_LAMMPS)  # order 8
+    with pytest.warns(UserWarning, match="order 8 on the mesh .*order 7 on the mesh"):
+        lines = _kspace_lines(tmp_path, atoms, term)
+    K7 = Dipolar(4.0, "pme", accuracy=1e-4, order=LAMMPS_PPPM_MAX_ORDER).mesh_size(
+        atoms.cell.array)
+    assert K7 != term.mesh_size(atoms.cell.array)  # a mesh for order 7, not order 8's
+    assert lines[1].endswith(f"mesh {K7[0]} {K7[1]} {K7[2]} order 7")
+    with pytest.warns(UserWarning, match="as given"):
+        lines = _kspace_lines(tmp_path, atoms, Dipolar(4.0, "pme", mesh=(20, 24, 30), order=9,
+                                                       prefactor=DIPOLAR_LAMMPS))
+    assert lines[1].endswith("mesh 20 24 30 order 7")
+    film = _film(4, 2.5, 2.0, vacuum=3.0)
+    set_spins(film, np.tile([0.0, 0.0, 1.0], (4, 1)), 2.0)
+    term = Dipolar(3.0, "pme", accuracy=1e-4, order=5, slab=4.0, prefactor=DIPOLAR_LAMMPS)
+    lines = _kspace_lines(tmp_path, film, term)
+    K = term.mesh_size(slab_geometry(film.cell.array, 4.0)[0])
+    assert f"mesh {K[0]} {K[1]} {K[2]} order 5" in lines[1]
+    assert lines[2] == "kspace_modify slab 4.0"
+    with pytest.raises(NotImplementedError, match="pppm/dipole/spin takes orthogonal"):
+        _kspace_lines(tmp_path, _scene("triclinic")[0], Dipolar(5.0, "pme", order=5,
+                                                                 prefactor=DIPOLAR_LAMMPS))
+
+
+def _lammps_pppm(atoms, kspace, dt_fs=0.01):
+    """LAMMPS with ``spin/dipole/long 1.0`` (no pair within 1 Å: the k-space
+    part alone) and the ``kspace`` lines: its energy, forces and stress at
+    ``run 0``, and its k-space field across the spins. LAMMPS keeps that
+    field in ``fm_long``, which no compute reads; one ``fix nve/spin`` step
+    on a frozen lattice rotates each spin about it (constant through the
+    step: no pair within the cutoff) by Cayley steps, s' − s = dt ω × m
+    with m = (s + s')/2 to O((ω dt)²) (≈ 1e-9 here), so m × (s' − s)/dt|m|²
+    is ω across m; times ħ, B = ħω across m (eV)."""
+    lmp = LammpsSpin(atoms, (0.0, 2.0, 3.0, False), (0.0, 0.0, 1.0, 3.0, False),
+                     timestep_fs=dt_fs, lattice="frozen", kspace=kspace,
+                     pairs=[("spin/dipole/long 1.0", ["pair_coeff * * spin/dipole/long 1.0"])])
+    try:
+        out = lmp.evaluate()
+        lmp.run(1)  # "pre no": the step's spin sweeps use run 0's fm_long
+        n = len(atoms)
+        after = np.ctypeslib.as_array(lmp.lmp.gather_atoms("sp", 1, 4)).reshape(n, 4)[:, :3]
+    finally:
+        lmp.close()
+    before = ase_spin.get_spins(atoms)
+    m = 0.5 * (before + after)
+    out["field"] = (np.cross(m, after - before) / (dt_fs * 1e-3)
+                    / np.einsum("ij,ij->i", m, m)[:, None] * EV_PER_FM)
+    out["across"] = m / np.linalg.norm(m, axis=1)[:, None]
+    return out
+
+
+def _ours(atoms, term, across):
+    """Energy, forces, stress and the magnetic forces' components across the
+    unit vectors ``across`` of ``term``."""
+    atoms.calc = SpinLatticeCalculator([term])
+    B = atoms.calc.get_magnetic_forces(atoms)
+    return {"energy": atoms.get_potential_energy(), "forces": atoms.get_forces(),
+            "stress": atoms.get_stress(),
+            "field": B - np.einsum("ij,ij->i", B, across)[:, None] * across}
+
+
+def _apart(a, b):
+    """Relative differences of energy, forces, field and the stress's
+    diagonal (each against b's largest component)."""
+    return np.array([abs(a["energy"] - b["energy"]) / abs(b["energy"])]
+                    + [np.abs(a[k] - b[k]).max() / np.abs(b[k]).max()
+                       for k in ("forces", "field")]
+                    + [np.abs(a["stress"][:3] - b["stress"][:3]).max()
+                       / np.abs(b["stress"][:3]).max()])
+
+
+def _pppm_agreement(tmp_path, accuracies, order):
+    """(ours − Ewald, LAMMPS − Ewald, LAMMPS − ours) per accuracy (rows of
+    _apart), LAMMPS's deck written by write_lammps; α = 0.35 fixed (the
+    pair cutoff, 1 Å, leaves no real-space pair), the reference the Ewald
+    sum at 1e-14; and the ratio of LAMMPS's field to ours over μ_i."""
+    atoms = _cobalt(2)
+    alpha = 0.35
+    rows, ratios = [], []
+    for accuracy in accuracies:
+        term = Dipolar(1.0, "pme", alpha=alpha, accuracy=accuracy, order=order,
+                       prefactor=DIPOLAR_LAMMPS_KSPACE)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the k-space prefactor is not the pair styles'
+            kspace = _kspace_lines(tmp_path, atoms, term)
+        theirs = _lammps_pppm(atoms, kspace)
+        ours = _ours(atoms, term, theirs["across"])
+        ref = _ours(atoms, Dipolar(1.0, "ewald", alpha=alpha, accuracy=1e-14,
+                                   prefactor=DIPOLAR_LAMMPS_KSPACE), theirs["across"])
+        # the moment μ_i LAMMPS leaves out
+        theirs["field"] = theirs["field"] * np.linalg.norm(atoms.get_initial_magnetic_moments(),
+                                                           axis=1)[:, None]
+        ratios.append(np.abs(theirs["field"]).max() / np.abs(ours["field"]).max())
+        rows.append([_apart(ours, ref), _apart(theirs, ref), _apart(theirs, ours)])
+    return np.array(rows), np.array(ratios)
+
+
+def _check_pppm_agreement(rows, accuracies):
+    for (ours, theirs, apart), accuracy in zip(rows, accuracies):
+        # forces, the slowest to converge, to 2× the accuracy; the rest to it
+        for errors in (ours, theirs, apart):
+            assert errors[1] < 2 * accuracy and max(errors[[0, 2, 3]]) < accuracy
+    # and they close in on each other as the accuracy tightens (not by luck):
+    # energy, forces and field at least √ of the accuracies' ratio closer
+    ratio = accuracies[-1] / accuracies[0]
+    assert np.all(rows[-1, 2, :3] < rows[0, 2, :3] * ratio**0.5)
+
+
+@pytest.mark.skipif(not lammps_available(), reason="lammps not importable")
+def test_pme_reciprocal_part_agrees_with_lammps_pppm(tmp_path):
+    """Our mesh and LAMMPS's pppm/dipole/spin (P3M: its optimal influence
+    function and ik differentiation) on the same mesh, order 5 and α, its
+    deck written by write_lammps: both within the accuracy of the Ewald sum,
+    so within it of each other, the closer the finer the mesh. LAMMPS's
+    k-space field lacks the moment μ_i (1.72 here) that its pair styles'
+    fields carry: its spins precess 1/μ_i as fast as they should."""
+    accuracies = [1e-3, 1e-4]
+    rows, ratios = _pppm_agreement(tmp_path, accuracies, 5)
+    _check_pppm_agreement(rows, accuracies)
+    np.testing.assert_allclose(ratios, 1.0, rtol=1e-3)  # once μ_i is put back
+
+
+@pytest.mark.skipif(not lammps_available(), reason="lammps not importable")
+def test_pme_agrees_with_lammps_pppm_to_tighter_accuracies(tmp_path):
+    """As test_pme_reciprocal_part_agrees_with_lammps_pppm, at LAMMPS's highest
+    order (7) down to 1e-6 (the field's measure has a floor of ~2e-8)."""
+    accuracies = [1e-3, 1e-4, 1e-5, 1e-6]
+    rows, _ = _pppm_agreement(tmp_path, accuracies, 7)
+    _check_pppm_agreement(rows, accuracies)
 
 
 def test_suzuki_trotter_refuses_the_mesh_saying_why():

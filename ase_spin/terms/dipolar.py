@@ -1,5 +1,6 @@
 """The magnetic dipole–dipole interaction of point moments (LAMMPS ``pair_style
-spin/dipole/cut``, ``spin/dipole/long`` with ``kspace_style ewald/dipole/spin``):
+spin/dipole/cut``, ``spin/dipole/long`` with ``kspace_style ewald/dipole/spin``
+or ``pppm/dipole/spin``):
 a plain cutoff, the direct sum over all pairs of an open system, and the Ewald
 sum of a fully periodic one with tin-foil boundary conditions or of a slab
 (periodic in two directions, the Yeh–Berkowitz correction), its reciprocal
@@ -45,6 +46,7 @@ __all__ = [
     "DIPOLAR_CODATA",
     "DIPOLAR_LAMMPS",
     "Dipolar",
+    "LAMMPS_PPPM_MAX_ORDER",
     "DipolarOperator",
     "ewald_error_bound",
     "ewald_parameters",
@@ -60,6 +62,10 @@ DIPOLAR_CODATA = units._mu0 / (4.0 * math.pi) * MU_B**2 * units._e * 1e30
 DIPOLAR_LAMMPS = 9.274e-4**2 * 784.15 / (4.0 * math.pi)
 
 _METHODS = ("cut", "direct", "ewald", "pme")
+
+#: The highest stencil order LAMMPS's ``pppm/dipole/spin`` takes (its
+#: MAXORDER; its order p is the points per axis, our B-spline order).
+LAMMPS_PPPM_MAX_ORDER = 7
 
 
 class _Bound:
@@ -452,21 +458,23 @@ class Dipolar(SpinTerm):
         """``pair_style spin/dipole/cut rc``; for the Ewald sum ``spin/dipole/long
         rc`` with ``kspace_style ewald/dipole/spin accuracy``, ``kspace_modify
         gewald α kmax/ewald nx ny nz`` (the k-vectors within k_c along each box
-        length; LAMMPS keeps those in the sphere of the largest of them) and,
-        for a slab, ``slab factor``. LAMMPS's constant is fixed
-        (:data:`DIPOLAR_LAMMPS`; 785.15/784.15 of it in ``ewald/dipole/spin``):
-        another prefactor is warned about. The direct sum has no counterpart;
-        the mesh (``"pme"``) is not exported (NotImplementedError says why)."""
+        length; LAMMPS keeps those in the sphere of the largest of them); for
+        the mesh (``"pme"``) ``kspace_style pppm/dipole/spin accuracy`` with
+        ``kspace_modify gewald α mesh K1 K2 K3 order p`` (LAMMPS's P3M on the
+        same mesh: the same sum to both methods' accuracies); for a slab
+        ``slab factor``. LAMMPS's P3M takes orders up to
+        :data:`LAMMPS_PPPM_MAX_ORDER`: a higher order is exported as that one,
+        on the mesh :func:`~ase_spin.terms.dipolar_mesh.mesh_size` chooses
+        for it at the same accuracy (``mesh`` as given, if given), with a
+        warning naming both. LAMMPS's constant is fixed (:data:`DIPOLAR_LAMMPS`;
+        785.15/784.15 of it in its k-space styles): another prefactor is
+        warned about. The direct sum has no counterpart (NotImplementedError
+        says why)."""
         if self.method == "direct":
             raise NotImplementedError(
                 "Dipolar(method='direct') sums every pair of an open system, which no LAMMPS "
                 "style does; use method='cut' with rc beyond the system's size "
                 "(spin/dipole/cut), the same sum")
-        if self.method == "pme":
-            raise NotImplementedError(
-                "Dipolar(method='pme') is not exported: LAMMPS's pppm/dipole/spin is P3M with "
-                "its own mesh and influence function, the same sum only to both accuracies; "
-                "export method='ewald' (ewald/dipole/spin) with the same rc and accuracy")
         pref = self._prefactor(types.conventions)
         if abs(pref / DIPOLAR_LAMMPS - 1.0) > 1e-12:
             warn_user(f"Dipolar's prefactor {pref:.10g} eV·Å³ is not LAMMPS's fixed "
@@ -476,16 +484,39 @@ class Dipolar(SpinTerm):
         if self.method == "cut":
             return [LammpsPair("spin/dipole/cut", rc, [("*", "*", rc)])]
         box = types.box
+        style = "ewald/dipole/spin" if self.method == "ewald" else "pppm/dipole/spin"
         if box is None or np.any(box[np.tril_indices(3, -1)]):
-            raise NotImplementedError("LAMMPS's ewald/dipole/spin takes orthogonal boxes only; "
-                                      "this cell is triclinic")
+            raise NotImplementedError(f"LAMMPS's {style} takes orthogonal boxes only; this "
+                                      "cell is triclinic")
         alpha, kcut = self.splitting()
         slab = types.pbc is not None and tuple(types.pbc) == (True, True, False)
         factor = (3.0 if self.slab is None else self.slab) if slab else 1.0
         lengths = np.diag(box) * [1.0, 1.0, factor]
-        kmax = [max(1, math.floor(kcut * length / (2.0 * math.pi))) for length in lengths]
-        modify = [f"gewald {number_text(alpha)} kmax/ewald {kmax[0]} {kmax[1]} {kmax[2]}"]
+        if self.method == "ewald":
+            kmax = [max(1, math.floor(kcut * length / (2.0 * math.pi))) for length in lengths]
+            grid = f"kmax/ewald {kmax[0]} {kmax[1]} {kmax[2]}"
+        else:
+            grid = self._lammps_mesh(np.diag(lengths), alpha, kcut)
+        modify = [f"gewald {number_text(alpha)} {grid}"]
         if slab:
             modify.append(f"slab {number_text(factor)}")
         return [LammpsPair("spin/dipole/long", rc, [("*", "*", rc)]),
-                LammpsKspace("ewald/dipole/spin", number_text(self.accuracy), modify)]
+                LammpsKspace(style, number_text(self.accuracy), modify)]
+
+    def _lammps_mesh(self, cell, alpha, kcut):
+        """``mesh K1 K2 K3 order p`` of ``pppm/dipole/spin`` for the Ewald cell."""
+        order = self.spline_order
+        if order <= LAMMPS_PPPM_MAX_ORDER:
+            mesh = self.mesh_size(cell)
+        else:
+            ours = self.mesh_size(cell)
+            order = LAMMPS_PPPM_MAX_ORDER
+            mesh = (self.mesh if self.mesh is not None
+                    else mesh_size(cell, alpha, kcut, self.accuracy, order))
+            warn_user(f"Dipolar(method='pme') has B-splines of order {self.spline_order} on "
+                      f"the mesh {'x'.join(map(str, ours))}; LAMMPS's pppm/dipole/spin takes "
+                      f"orders up to {LAMMPS_PPPM_MAX_ORDER}: the deck has order {order} on "
+                      f"the mesh {'x'.join(map(str, mesh))}"
+                      + (" (as given: coarser interpolation than ours)" if self.mesh is not None
+                         else " (chosen for the same accuracy)"))
+        return f"mesh {mesh[0]} {mesh[1]} {mesh[2]} order {order}"
