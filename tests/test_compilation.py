@@ -17,7 +17,7 @@ import gc, json
 from ase import units
 from numba.core.registry import CPUDispatcher
 import ase_spin
-from ase_spin.scenes import fcc_cobalt, field_anisotropy_terms, other_spin_terms
+from ase_spin.scenes import dipolar_sums, fcc_cobalt, field_anisotropy_terms, other_spin_terms
 
 for n in (3, 8):  # 108 atoms (serial kernels), 2048 (threaded)
     for extra in ((), field_anisotropy_terms()):
@@ -35,6 +35,12 @@ atoms.rattle(0.02, seed=1)
 ase_spin.CollectivePRK(atoms, 0.1 * units.fs).run(3)
 ase_spin.Langevin(atoms, 0.1 * units.fs, 100.0, spin_damping=0.01, friction=0.01, rng=0).run(2)
 ase_spin.CollectivePRK(fcc_cobalt(3), 0.1 * units.fs, lattice="frozen").run(4)
+# the dipolar sums over k-vectors and on a mesh, as ase-spin compile runs them
+for n, methods in ((3, ("ewald", "pme")), (8, ("pme",))):
+    atoms = fcc_cobalt(n, extra=dipolar_sums(methods))
+    atoms.rattle(0.02, seed=1)
+    atoms.get_stress()
+    ase_spin.CollectivePRK(atoms, 0.1 * units.fs).run(3)
 signatures = {}
 for d in gc.get_objects():
     if isinstance(d, CPUDispatcher) and d.py_func.__module__.startswith("ase_spin"):
@@ -66,9 +72,10 @@ started = []
 def test_each_kernel_is_compiled_for_one_set_of_argument_types():
     """Small and large systems, with and without single-site terms, through the
     calculator and four integrators (the small system's fused step included),
-    every other spin term and a frozen lattice: every kernel but ``same`` is
-    specialised once (arguments normalised where they enter: contiguous arrays, float and
-    int64 scalars), so a scene compiles each kernel once."""
+    every other spin term, a frozen lattice and the dipolar Ewald and mesh
+    sums: every kernel but ``same`` is specialised once (arguments normalised
+    where they enter: contiguous arrays, float and int64 scalars), so a scene
+    compiles each kernel once."""
     scan = started.pop() if started else start_scan()
     stdout, stderr = finish(scan, timeout=1200)
     assert scan.returncode == 0, stderr

@@ -9,6 +9,7 @@ methods' accuracies, skipped without lammps)."""
 
 import warnings
 
+import numba
 import numpy as np
 import pytest
 from ase import units
@@ -29,6 +30,10 @@ from ase_spin import (
     Want,
     set_spins,
 )
+from ase_spin._jit import threads
+from ase_spin._jit.reductions import stencil_groups
+from ase_spin._jit.threads import chunks
+from ase_spin.scenes import fcc_cobalt
 from ase_spin.terms.dipolar import LAMMPS_PPPM_MAX_ORDER
 from ase_spin.terms.dipolar_kspace import ewald_parameters, slab_geometry
 from ase_spin.terms.dipolar_mesh import bspline_weights, mesh_size, mesh_spacing
@@ -348,3 +353,53 @@ def test_mesh_spacing_follows_the_estimate():
     for order in (5, 8):
         assert mesh_spacing(0.5, 1e-4, order) / mesh_spacing(0.5, 1e-6, order) == pytest.approx(
             100 ** (1 / (order - 2)))
+
+
+@pytest.mark.parametrize("nkeys,reach", [(5, 1), (7, 3), (10, 3), (12, 3), (13, 3), (160, 7),
+                                         (161, 9)])
+def test_stencil_groups_of_one_parity_write_disjoint_planes(nkeys, reach):
+    """The threaded spread's cut (``stencil_groups``): rows sorted by plane k
+    cut into one group (fewer than 2·reach planes) or an even number of
+    groups of whole planes, and the planes k − reach … k (mod nkeys) that the
+    rows of two groups of one parity write are disjoint."""
+    keys = np.sort(np.random.default_rng(0).integers(0, nkeys, 600))
+    bounds = stencil_groups(keys, nkeys, reach)
+    n = len(bounds) - 1
+    assert bounds[0] == 0 and bounds[-1] == len(keys) and np.all(np.diff(bounds) >= 0)
+    assert (n == 1) == (nkeys < 2 * reach) and (n == 1 or n % 2 == 0)
+    groups = [keys[bounds[g]:bounds[g + 1]] for g in range(n)]
+    for a, b in zip(groups, groups[1:]):
+        assert not set(a) & set(b)  # whole planes
+    written = [{(k - j) % nkeys for k in g for j in range(reach + 1)} for g in groups]
+    for a in range(n):
+        for b in range(a + 2, n, 2):
+            assert not written[a] & written[b], (a, b)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(chunks() < 2, reason="numba has one thread here")
+def test_threaded_mesh_kernels_give_the_same_bits_with_one_thread_or_all(monkeypatch):
+    """From threads.SERIAL_BELOW atoms the spread (groups of planes), the
+    gather, the spectral sums and the real-space pair passes run threaded
+    over fixed chunks: energy, forces, stress, magnetic forces and per-atom
+    energies are the same to the bit with one thread or all, and agree with
+    the serial twins (a small system's) to round-off."""
+    def evaluate(nthreads):
+        atoms = fcc_cobalt(8)
+        atoms.rattle(0.05, seed=3)
+        atoms.calc = SpinLatticeCalculator([Dipolar(4.0, "pme", accuracy=1e-4)])
+        previous = numba.get_num_threads()
+        numba.set_num_threads(nthreads)
+        try:
+            return (atoms.get_potential_energy(), atoms.get_forces(), atoms.get_stress(),
+                    atoms.calc.get_magnetic_forces(atoms), atoms.get_potential_energies())
+        finally:
+            numba.set_num_threads(previous)
+
+    assert len(fcc_cobalt(8)) >= threads.SERIAL_BELOW
+    one, every = evaluate(1), evaluate(chunks())
+    for a, b in zip(one, every):
+        assert np.array_equal(a, b)
+    monkeypatch.setattr(threads, "SERIAL_BELOW", 10**9)
+    for a, b in zip(one, evaluate(chunks())):
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * np.abs(a).max())

@@ -20,7 +20,13 @@ increment and decrement per call, which numba's pruning does not remove
 80c7697:docs/benchmarks.md``, "Tried and not kept"). A kernel with a serial twin passes its
 own ``reduce_threads`` to :func:`reduce_scatter` (the twin's is
 :func:`reduce_threads_serial`; a name looked up here would stay the threaded
-one)."""
+one).
+
+A scatter onto a mesh (the particle-mesh Ewald sum's spread) takes no
+per-thread buffers, which would cost a whole mesh per thread: its rows,
+sorted by mesh plane, are cut into groups of planes (:func:`stencil_groups`)
+such that groups of one parity write disjoint planes; the even groups run
+in parallel, then the odd ones."""
 
 from __future__ import annotations
 
@@ -29,9 +35,26 @@ import numpy as np
 
 from .cloning import prange_only, serial_twin
 
-__all__ = ["balanced_chunks", "reduce_threads", "reduce_threads_serial", "sum_over_threads",
-           "thread_buffer", "scatter_buffers", "add_to", "add_row", "sub_row", "store_sums",
-           "reduce_scatter"]
+__all__ = ["stencil_groups", "balanced_chunks", "reduce_threads", "reduce_threads_serial",
+           "sum_over_threads", "thread_buffer", "scatter_buffers", "add_to", "add_row", "sub_row",
+           "store_sums", "reduce_scatter"]
+
+
+def stencil_groups(keys, nkeys, reach):
+    """Boundaries (ngroups + 1) cutting rows sorted by a periodic key
+    k ∈ [0, nkeys) into groups of whole runs of keys, where a row of key k
+    writes to keys k − reach … k (mod nkeys): an even number of groups, each
+    at least ``reach`` keys wide (or one group where nkeys < 2 reach), so that
+    no two groups of one parity write a common key and each parity's groups
+    can run in parallel without buffers, the even ones first. The cut depends
+    on nkeys and reach alone: every key receives its rows' sums in the same
+    order whatever the number of threads."""
+    reach = max(1, int(reach))
+    ngroups = 2 * (nkeys // (2 * reach))
+    if ngroups < 2:
+        ngroups = 1
+    cuts = (np.arange(ngroups + 1, dtype=np.int64) * nkeys) // ngroups
+    return np.searchsorted(np.asarray(keys), cuts, side="left").astype(np.int64)
 
 
 @nb.njit(cache=True)

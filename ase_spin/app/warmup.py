@@ -16,7 +16,9 @@ threaded ones), through ``CollectivePRK`` (orders 2 and 4, and with a frozen
 lattice), ``SuzukiTrotter`` and ``Langevin``; and every other spin term
 (cubic anisotropy, DMI, biquadratic and shell exchange) through
 ``CollectivePRK`` and ``Langevin``, whose kernels then serve any combination
-of terms. EAM compiles on first use, or give an input file that uses it.
+of terms; and the dipolar Ewald sum over k-vectors and on a mesh
+(:func:`~ase_spin.scenes.dipolar_sums`: 108 atoms, the mesh at 2048 atoms
+too). EAM compiles on first use, or give an input file that uses it.
 
 The tasks after the first run in ``jobs`` processes at once (numba compiles
 on one core); the first one, alone, compiles the kernels every scene shares.
@@ -36,7 +38,7 @@ import ase_spin
 from .._jit import cache as compilation
 from .._jit.reductions import balanced_chunks
 from ..neighbors import NeighborCache
-from ..scenes import fcc_cobalt, field_anisotropy_terms, other_spin_terms
+from ..scenes import dipolar_sums, fcc_cobalt, field_anisotropy_terms, other_spin_terms
 from .inputs import build_integrator, build_scene, in_folder, load_input
 
 __all__ = ["BUILTIN", "compile_kernels"]
@@ -44,7 +46,8 @@ __all__ = ["BUILTIN", "compile_kernels"]
 _BATH = {"temperature_K": 100.0, "spin_damping": 0.01, "friction": 0.01, "rng": 0}
 
 #: The spin terms a built-in task adds to fcc Co's exchange, by name.
-EXTRA_TERMS = {"none": tuple, "field": field_anisotropy_terms, "all": other_spin_terms}
+EXTRA_TERMS = {"none": tuple, "field": field_anisotropy_terms, "all": other_spin_terms,
+               "dipolar": dipolar_sums, "mesh": lambda: dipolar_sums(("pme",))}
 
 #: The built-in tasks: (label, cells per edge (4n³ atoms), the spin terms beside
 #: exchange (a key of EXTRA_TERMS), integrator, keywords). The first runs alone
@@ -61,14 +64,18 @@ BUILTIN = [
      ("CollectivePRK + field + anisotropy, 108 atoms", 3, "field", "CollectivePRK", {}),
      ("SuzukiTrotter + field + anisotropy, 108 atoms", 3, "field", "SuzukiTrotter", {}),
      ("CollectivePRK + every spin term, 108 atoms", 3, "all", "CollectivePRK", {}),
-     ("Langevin + every spin term, 108 atoms", 3, "all", "Langevin", _BATH)],
+     ("Langevin + every spin term, 108 atoms", 3, "all", "Langevin", _BATH),
+     ("CollectivePRK + dipolar Ewald and mesh sums, 108 atoms", 3, "dipolar", "CollectivePRK",
+      {}),
+     ("Langevin + dipolar Ewald and mesh sums, 108 atoms", 3, "dipolar", "Langevin", _BATH)],
     [("calculator, 2048 atoms", 8, "none", None, {}),
      ("CollectivePRK, 2048 atoms", 8, "none", "CollectivePRK", {}),
      ("CollectivePRK order 4, 2048 atoms", 8, "none", "CollectivePRK", {"order": 4}),
      ("Langevin, 2048 atoms", 8, "none", "Langevin", _BATH),
      ("CollectivePRK + field + anisotropy, 2048 atoms", 8, "field", "CollectivePRK", {}),
      ("CollectivePRK + every spin term, 2048 atoms", 8, "all", "CollectivePRK", {}),
-     ("Langevin + every spin term, 2048 atoms", 8, "all", "Langevin", _BATH)],
+     ("Langevin + every spin term, 2048 atoms", 8, "all", "Langevin", _BATH),
+     ("CollectivePRK + dipolar mesh sum, 2048 atoms", 8, "mesh", "CollectivePRK", {})],
 ]
 
 

@@ -14,6 +14,7 @@ import math
 import numpy as np
 from ase import units
 
+from .._jit import threads
 from ..constants import MU_B
 from ..validate import length, positive_scalar, warn_user
 from .base import SpinOperator, SpinTerm
@@ -148,7 +149,7 @@ class DipolarOperator(SpinOperator):
             direct_field(self.pos, m, H)
         else:
             p = self.pairs
-            list_field(p.row, p.j, p.half, m, self.D, self.B, H)
+            list_field(threads.count(), p.row, p.j, p.half, m, self.D, self.B, H)
         if self.recip is not None:
             self.recip.field(m, H)
             H -= (2.0 * self.bound.self_coef) * m  # −∂/∂m of self_coef |m|²
@@ -178,8 +179,8 @@ class DipolarOperator(SpinOperator):
             v = direct_pass(self.pos, m, F, e_i, want.forces, want.energies)
         else:
             p = self.pairs
-            v = list_pass(p.row, p.j, p.half, m, self.D, self.B, F, e_i, want.forces,
-                           want.energies)
+            v = list_pass(threads.count(), p.row, p.j, p.half, m, self.D, self.B, F, e_i,
+                          want.forces, want.energies)
         energy, virial = v[0], v[1:].copy()
         H = None
         if self.recip is None:
@@ -193,7 +194,7 @@ class DipolarOperator(SpinOperator):
             if need_field:
                 p = self.pairs
                 Hreal = np.zeros_like(m)
-                list_field(p.row, p.j, p.half, m, self.D, self.B, Hreal)
+                list_field(threads.count(), p.row, p.j, p.half, m, self.D, self.B, Hreal)
                 H = Hreal.copy()
             Ek, Wk = self.recip.add(m, H, F, need_field, want.forces, want.virial)
             m2 = np.einsum("ij,ij->i", m, m)
@@ -445,8 +446,8 @@ class Dipolar(SpinTerm):
         n = len(pairs)
         D = np.empty((n, 3))
         B = np.empty((n, 3))
-        pair_geometry(positions, pairs.row, pairs.j, pairs.image, pairs.images, self.rc**2,
-                  bound.alpha, D, B)
+        pair_geometry(threads.count(), positions, pairs.row, pairs.j, pairs.image, pairs.images,
+                      self.rc**2, bound.alpha, D, B)
         recip = None
         if self.method == "ewald":
             recip = Reciprocal(positions, bound.k, bound.A, bound.volume, bound.alpha)

@@ -38,7 +38,10 @@ derivatives are gathers of φ with the spline derivatives:
 
 The B-spline weights and their first and second derivatives are computed
 once per position (:class:`MeshReciprocal`): each field then costs one spread
-(N p³), one real FFT pair (M log M for M = K_1 K_2 K_3) and one gather (N p³).
+(N p³), one real FFT pair (M log M for M = K_1 K_2 K_3) and one gather (N p³),
+all threaded. The energy is taken on the transform, ½ Σ_g Q φ =
+(1/2M) Σ_m G |FQ|² (Parseval), as is the influence function's part of the
+virial, so that no more than two meshes are alive at once.
 """
 
 from __future__ import annotations
@@ -50,6 +53,7 @@ import numpy as np
 import scipy.fft
 
 from .._jit import threads
+from .._jit.reductions import stencil_groups, store_sums, sum_over_threads
 from .._jit.threads import threaded
 
 __all__ = ["MeshInfluence", "MeshReciprocal", "bspline_moduli", "bspline_weights",
@@ -185,47 +189,93 @@ class MeshInfluence:
             k2 = k2 + (m1 * recip[0, c] + m2 * recip[1, c] + m3 * recip[2, c]) ** 2
         return k2
 
-    def wavevectors(self):
-        """k = 2π Σ_a m_a b_a on the real FFT's half-spectrum (K_1, K_2, K_3/2 + 1, 3)."""
-        m1, m2, m3 = self._frequencies()
-        recip = self.inv.T
-        return 2.0 * math.pi * (m1[..., None] * recip[0] + m2[..., None] * recip[1]
-                                + m3[..., None] * recip[2])
-
 
 # -- spreading and gathering over atoms × p³ mesh points -------------------------
 
-@nb.njit(cache=True)
-def _spread(base, w, dw, c, Q):
-    """Q(g) += Σ_i Σ_a c_ia ∂W_g/∂u_a(u_i) (c_i = D m_i): serial (atoms share
-    mesh points)."""
+@nb.njit(cache=True, inline="always")
+def _spread_atom(i, base, w, dw, c, Q):
+    """Q(g) += Σ_a c_ia ∂W_g/∂u_a(u_i) over atom i's p³ mesh points."""
     K1, K2, K3 = Q.shape
     p = w.shape[2]
-    for i in range(base.shape[0]):
-        c0 = c[i, 0]
-        c1 = c[i, 1]
-        c2 = c[i, 2]
-        if c0 == 0.0 and c1 == 0.0 and c2 == 0.0:
-            continue
-        for j0 in range(p):
-            g0 = base[i, 0] - j0
-            if g0 < 0:
-                g0 += K1
-            wx = w[i, 0, j0]
-            dx = dw[i, 0, j0]
-            for j1 in range(p):
-                g1 = base[i, 1] - j1
-                if g1 < 0:
-                    g1 += K2
-                wy = w[i, 1, j1]
-                dy = dw[i, 1, j1]
-                plane = c0 * dx * wy + c1 * wx * dy
-                axis = c2 * wx * wy
-                for j2 in range(p):
-                    g2 = base[i, 2] - j2
-                    if g2 < 0:
-                        g2 += K3
-                    Q[g0, g1, g2] += plane * w[i, 2, j2] + axis * dw[i, 2, j2]
+    c0 = c[i, 0]
+    c1 = c[i, 1]
+    c2 = c[i, 2]
+    if c0 == 0.0 and c1 == 0.0 and c2 == 0.0:
+        return
+    for j0 in range(p):
+        g0 = base[i, 0] - j0
+        if g0 < 0:
+            g0 += K1
+        wx = w[i, 0, j0]
+        dx = dw[i, 0, j0]
+        for j1 in range(p):
+            g1 = base[i, 1] - j1
+            if g1 < 0:
+                g1 += K2
+            wy = w[i, 1, j1]
+            dy = dw[i, 1, j1]
+            plane = c0 * dx * wy + c1 * wx * dy
+            axis = c2 * wx * wy
+            for j2 in range(p):
+                g2 = base[i, 2] - j2
+                if g2 < 0:
+                    g2 += K3
+                Q[g0, g1, g2] += plane * w[i, 2, j2] + axis * dw[i, 2, j2]
+
+
+@threaded()
+def _spread(groups, base, w, dw, c, Q):
+    """Q(g) += Σ_i Σ_a c_ia ∂W_g/∂u_a(u_i) (c_i = D m_i), the atoms sorted by
+    mesh cell and cut into groups of planes along the first axis
+    (:func:`~ase_spin._jit.reductions.stencil_groups`): the even groups in
+    parallel, then the odd ones, each group's atoms in order (the same sums
+    in the same order whatever the thread count)."""
+    ngroups = len(groups) - 1
+    for parity in range(2):
+        for h in nb.prange((ngroups - parity + 1) // 2):
+            g = 2 * h + parity
+            for i in range(groups[g], groups[g + 1]):
+                _spread_atom(i, base, w, dw, c, Q)
+
+
+@threaded()
+def _spectrum(nthreads, Qk, G, R, alpha, K3, want_v, acc):
+    r"""On the real FFT's half-spectrum FQ (K_1 × K_2 × (K_3/2 + 1)), with the
+    weights w_m (2, but 1 on the planes m_3 = 0 and m_3 = K_3/2 that the
+    half-spectrum holds once): acc[t] = (Σ w G |FQ|², and with ``want_v``
+    Σ w G |FQ|² (1/k² + 1/4α²) k_a k_b in Voigt order) over chunk t of the
+    first axis' planes, k = Σ_a m_a R_a (R = 2π (cell⁻¹)ᵀ, m the FFT's
+    frequencies); and FQ ← G FQ in place."""
+    K1, K2, H3 = Qk.shape
+    quarter = 0.25 / (alpha * alpha)
+    for t in nb.prange(nthreads):
+        e = vxx = vyy = vzz = vyz = vxz = vxy = 0.0
+        for a in range(t * K1 // nthreads, (t + 1) * K1 // nthreads):
+            m0 = a if a < (K1 + 1) // 2 else a - K1
+            for b in range(K2):
+                m1 = b if b < (K2 + 1) // 2 else b - K2
+                for c in range(H3):
+                    q = Qk[a, b, c]
+                    g = G[a, b, c]
+                    Qk[a, b, c] = g * q
+                    if g == 0.0:
+                        continue
+                    wg = g * (q.real * q.real + q.imag * q.imag)
+                    if c != 0 and 2 * c != K3:
+                        wg *= 2.0
+                    e += wg
+                    if want_v:
+                        kx = m0 * R[0, 0] + m1 * R[1, 0] + c * R[2, 0]
+                        ky = m0 * R[0, 1] + m1 * R[1, 1] + c * R[2, 1]
+                        kz = m0 * R[0, 2] + m1 * R[1, 2] + c * R[2, 2]
+                        r = wg * (1.0 / (kx * kx + ky * ky + kz * kz) + quarter)
+                        vxx += r * kx * kx
+                        vyy += r * ky * ky
+                        vzz += r * kz * kz
+                        vyz += r * ky * kz
+                        vxz += r * kx * kz
+                        vxy += r * kx * ky
+        store_sums(acc, t, e, vxx, vyy, vzz, vyz, vxz, vxy)
 
 
 @threaded()
@@ -293,9 +343,10 @@ class MeshReciprocal:
     the spline weights M_p, M_p', M_p'' of every atom along each axis and its
     mesh cell are kept (9 p doubles and 4 integers per atom), the atoms
     sorted by mesh cell (``order``: neighbours on the mesh are spread and
-    gathered one after the other, which keeps the mesh's rows in cache)."""
+    gathered one after the other, which keeps the mesh's rows in cache) and
+    cut into groups of planes for the threaded spread (``groups``)."""
 
-    __slots__ = ("base", "d2w", "dw", "influence", "order", "w")
+    __slots__ = ("base", "d2w", "dw", "groups", "influence", "order", "w")
 
     def __init__(self, positions, influence):
         self.influence = influence
@@ -305,6 +356,8 @@ class MeshReciprocal:
         base = np.mod(floor.astype(np.int64), K)
         self.order = np.lexsort((base[:, 2], base[:, 1], base[:, 0]))
         self.base = np.ascontiguousarray(base[self.order])
+        # an atom of plane g spreads onto planes g − p + 1 … g
+        self.groups = stencil_groups(self.base[:, 0], influence.mesh[0], influence.order - 1)
         w, dw, d2w = bspline_weights((u - floor)[self.order], influence.order)
         self.w = np.ascontiguousarray(w)
         self.dw = np.ascontiguousarray(dw)
@@ -314,15 +367,30 @@ class MeshReciprocal:
     def _workers():
         return 1 if threads.small() else nb.get_num_threads()
 
-    def _potential(self, m):
-        """(Q, φ) at moments m: spread, FFT, × G, inverse FFT."""
+    def _potential(self, m, want_v=False):
+        """(φ, sums) at moments m: spread, FFT, × G, inverse FFT, with sums =
+        Σ_t of :func:`_spectrum`'s chunk sums. The 3D FFTs go one axis at a
+        time, the complex ones in place: two meshes at most are alive at once
+        (Q and its transform, then the transform and φ), where ``rfftn`` and
+        ``irfftn`` hold a third (at 10⁵ atoms and more the meshes are most of
+        the memory)."""
         inf = self.influence
         Q = np.zeros(inf.mesh)
-        _spread(self.base, self.w, self.dw, np.ascontiguousarray(m[self.order] @ inf.D.T), Q)
+        _spread(self.groups, self.base, self.w, self.dw,
+                np.ascontiguousarray(m[self.order] @ inf.D.T), Q)
         workers = self._workers()
-        Qk = scipy.fft.rfftn(Q, workers=workers)
-        phi = scipy.fft.irfftn(Qk * inf.G, s=inf.mesh, workers=workers)
-        return Q, Qk, phi
+        Qk = scipy.fft.rfft(Q, axis=2, workers=workers)
+        del Q
+        for axis in (1, 0):
+            Qk = scipy.fft.fft(Qk, axis=axis, overwrite_x=True, workers=workers)
+        nthreads = threads.count()
+        acc = np.zeros((nthreads, 7))
+        _spectrum(nthreads, Qk, inf.G, 2.0 * math.pi * inf.inv.T, inf.alpha, inf.mesh[2],
+                  want_v, acc)
+        for axis in (0, 1):
+            Qk = scipy.fft.ifft(Qk, axis=axis, overwrite_x=True, workers=workers)
+        phi = scipy.fft.irfft(Qk, n=inf.mesh[2], axis=2, overwrite_x=True, workers=workers)
+        return phi, sum_over_threads(acc)
 
     def _gather(self, phi, second):
         """(G1, G2) of :func:`_gather`, rows in the atoms' order."""
@@ -340,22 +408,23 @@ class MeshReciprocal:
 
     def field(self, m, H):
         """H_i += −Σ_g φ(g) ∇W_g(r_i) = −Σ_a G1_ia D_a."""
-        _, _, phi = self._potential(m)
+        phi, _ = self._potential(m)
         G1, _ = self._gather(phi, False)
         H -= G1 @ self.influence.D
 
     def add(self, m, H, F, want_h, want_f, want_v):
-        """E_k = ½ Σ_g Q φ, and where wanted the field (as :meth:`field`), the
-        forces F_i −= Σ_a D_a (G2_i D m_i)_a and the virial (:meth:`virial`);
-        returns (E_k, virial)."""
+        """E_k = ½ Σ_g Q φ = (1/2M) Σ_m G |FQ|² (M = K_1 K_2 K_3 points, F the
+        forward FFT: Parseval), and where wanted the field (as :meth:`field`),
+        the forces F_i −= Σ_a D_a (G2_i D m_i)_a and the virial
+        (:meth:`virial`); returns (E_k, virial)."""
         inf = self.influence
-        Q, Qk, phi = self._potential(m)
-        # einsum, not vdot: BLAS's threaded dot over M points stalls for
-        # milliseconds when the cores are busy
-        energy = 0.5 * float(np.einsum("ijk,ijk->", Q, phi))
+        phi, sums = self._potential(m, want_v)
+        npoints = float(np.prod(inf.mesh))
+        energy = 0.5 * sums[0] / npoints
         virial = np.zeros(6)
         if want_h or want_f or want_v:
             G1, G2 = self._gather(phi, want_f)
+            del phi
             Hk = -(G1 @ inf.D)
             if want_h:
                 H += Hk
@@ -365,31 +434,19 @@ class MeshReciprocal:
                 Gc = np.einsum("iab,ib->ia", G2[:, idx], c)
                 F -= Gc @ inf.D
             if want_v:
-                virial = self.virial(m, Qk, Hk, energy)
+                virial = self.virial(m, sums[1:] / npoints, Hk, energy)
         return energy, virial
 
-    def virial(self, m, Qk, Hk, energy):
+    @staticmethod
+    def virial(m, spectral, Hk, energy):
         r"""∂E_k/∂ε_ab of the mesh energy itself (fractional coordinates fixed):
         the influence function's strain, −δ_ab E_k + Σ_m (2π/V) A |b|²
         2 (1/k² + 1/4α²) k_a k_b |FQ|² (F: the forward FFT, the real FFT's
-        half-spectrum planes counted twice but the first and the Nyquist one),
-        and that of the spreading's gradients, ∇ = Σ_a K_a b_a ∂/∂u_a with b_a
-        → (1 − εᵀ) b_a: sym(Σ_i H_i m_iᵀ) with H the reciprocal field (the
-        Ewald sum's −k_a Re(S* T_b) − k_b Re(S* T_a))."""
-        inf = self.influence
-        K1, K2, K3 = inf.mesh
-        weight = np.full(K3 // 2 + 1, 2.0)
-        weight[0] = 1.0
-        if K3 % 2 == 0:
-            weight[-1] = 1.0
-        k = inf.wavevectors()
-        k2 = np.einsum("...i,...i->...", k, k)
-        k2[0, 0, 0] = 1.0
-        # G/2N is (2π/V) A |b|², N = K1 K2 K3
-        radial = ((1.0 / (K1 * K2 * K3)) * (1.0 / k2 + 0.25 / inf.alpha**2) * weight
-                  * inf.G * (Qk.real**2 + Qk.imag**2))
-        k = k.reshape(-1, 3)
-        W = k.T @ (k * radial.reshape(-1, 1))
+        half-spectrum planes counted twice but the first and the Nyquist one;
+        ``spectral``: that sum in Voigt order, from :func:`_spectrum`, G/2M
+        being (2π/V) A |b|²), and that of the spreading's gradients,
+        ∇ = Σ_a K_a b_a ∂/∂u_a with b_a → (1 − εᵀ) b_a: sym(Σ_i H_i m_iᵀ) with
+        H the reciprocal field (the Ewald sum's −k_a Re(S* T_b) − k_b Re(S* T_a))."""
         X = Hk.T @ m
-        W = W + 0.5 * (X + X.T) - energy * np.eye(3)
-        return W[[0, 1, 2, 1, 0, 0], [0, 1, 2, 2, 2, 1]]
+        W = 0.5 * (X + X.T) - energy * np.eye(3)
+        return W[[0, 1, 2, 1, 0, 0], [0, 1, 2, 2, 2, 1]] + spectral

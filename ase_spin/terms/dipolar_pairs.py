@@ -1,7 +1,9 @@
 """The compiled pair kernels of the dipolar term (:class:`~ase_spin.terms.dipolar.Dipolar`):
 the (screened) dipole tensor of a pair, passes over a pair list (the plain
 cutoff, the Ewald sum's real-space part) and the direct sum over every pair
-of an open system."""
+of an open system. The passes over a pair list are threaded over rows in
+the shared skeleton of :mod:`ase_spin._jit.reductions` (fixed chunks,
+per-thread buffers summed in order: the same bits whatever the thread count)."""
 
 from __future__ import annotations
 
@@ -9,6 +11,11 @@ import math
 
 import numba as nb
 import numpy as np
+
+from .._jit.reductions import (add_row, add_to, balanced_chunks, reduce_scatter, reduce_threads,
+                               reduce_threads_serial, scatter_buffers, store_sums, sub_row,
+                               thread_buffer)
+from .._jit.threads import threaded
 
 __all__ = ["cut_site", "direct_field", "direct_pass", "list_field", "list_pass", "pair_geometry"]
 
@@ -87,77 +94,101 @@ def cut_site(i, s, data):
 
 # -- passes over a pair list (cut, ewald real space) -----------------------------
 
-@nb.njit(cache=True)
-def pair_geometry(pos, row, nbr, image, images, rc2, alpha, D, B):
+@threaded()
+def pair_geometry(nthreads, pos, row, nbr, image, images, rc2, alpha, D, B):
     """For every pair k = (i → j): D_k = d_ij = r_j + S_k − r_i and
     B_k = (B1, B2, B3)(r_ij) of :func:`_radial`; zero beyond rc (the list
-    carries a skin) or at r = 0."""
-    for i in range(len(row) - 1):
-        for k in range(row[i], row[i + 1]):
-            j = nbr[k]
-            m = image[k]
-            dx = (pos[j, 0] - pos[i, 0]) + images[m, 0]
-            dy = (pos[j, 1] - pos[i, 1]) + images[m, 1]
-            dz = (pos[j, 2] - pos[i, 2]) + images[m, 2]
-            r2 = dx * dx + dy * dy + dz * dz
-            D[k, 0] = dx
-            D[k, 1] = dy
-            D[k, 2] = dz
-            if r2 >= rc2 or r2 == 0.0:
-                B[k, 0] = B[k, 1] = B[k, 2] = 0.0
-            else:
-                B[k, 0], B[k, 1], B[k, 2] = _radial(r2, alpha)
+    carries a skin) or at r = 0. Rows in ``nthreads`` chunks of equal pair
+    count."""
+    bounds = balanced_chunks(row, nthreads)
+    for t in nb.prange(nthreads):
+        for i in range(bounds[t], bounds[t + 1]):
+            for k in range(row[i], row[i + 1]):
+                j = nbr[k]
+                m = image[k]
+                dx = (pos[j, 0] - pos[i, 0]) + images[m, 0]
+                dy = (pos[j, 1] - pos[i, 1]) + images[m, 1]
+                dz = (pos[j, 2] - pos[i, 2]) + images[m, 2]
+                r2 = dx * dx + dy * dy + dz * dz
+                D[k, 0] = dx
+                D[k, 1] = dy
+                D[k, 2] = dz
+                if r2 >= rc2 or r2 == 0.0:
+                    B[k, 0] = B[k, 1] = B[k, 2] = 0.0
+                else:
+                    B[k, 0], B[k, 1], B[k, 2] = _radial(r2, alpha)
 
 
-@nb.njit(cache=True)
-def list_field(row, nbr, half, m, D, B, H):
+@threaded(reduce_threads=lambda: reduce_threads_serial)
+def list_field(nthreads, row, nbr, half, m, D, B, H):
     """H_i += Σ_j [B2 (m_j·d_ij) d_ij − B1 m_j] over a pair list (a half list
-    also adds the pair's field on j)."""
-    for i in range(len(row) - 1):
-        for k in range(row[i], row[i + 1]):
-            j = nbr[k]
-            _add_pair_field(H, i, m, j, D[k, 0], D[k, 1], D[k, 2], B[k, 0], B[k, 1])
+    also adds the pair's field on j, into per-thread buffers)."""
+    bounds = balanced_chunks(row, nthreads)
+    buf = thread_buffer(nthreads, len(row) - 1, half, 3)
+    for t in nb.prange(nthreads):
+        for i in range(bounds[t], bounds[t + 1]):
+            hx = 0.0
+            hy = 0.0
+            hz = 0.0
+            for k in range(row[i], row[i + 1]):
+                j = nbr[k]
+                dx = D[k, 0]
+                dy = D[k, 1]
+                dz = D[k, 2]
+                b1 = B[k, 0]
+                b2 = B[k, 1]
+                b = (m[j, 0] * dx + m[j, 1] * dy + m[j, 2] * dz) * b2
+                hx += b * dx - b1 * m[j, 0]
+                hy += b * dy - b1 * m[j, 1]
+                hz += b * dz - b1 * m[j, 2]
+                if half:
+                    a = (m[i, 0] * dx + m[i, 1] * dy + m[i, 2] * dz) * b2
+                    add_row(buf, t, j, 0, a * dx - b1 * m[i, 0], a * dy - b1 * m[i, 1],
+                            a * dz - b1 * m[i, 2])
             if half:
-                _add_pair_field(H, j, m, i, D[k, 0], D[k, 1], D[k, 2], B[k, 0], B[k, 1])
+                add_row(buf, t, i, 0, hx, hy, hz)
+            else:
+                add_to(H, i, hx, hy, hz)
+    if half:
+        reduce_threads(buf, H)
 
 
-@nb.njit(cache=True)
-def list_pass(row, nbr, half, m, D, B, F, energies, want_f, want_e):
+@threaded(reduce_threads=lambda: reduce_threads_serial)
+def list_pass(nthreads, row, nbr, half, m, D, B, F, energies, want_f, want_e):
     """Σ e (:func:`_pair`) over a pair list and its derivatives: F_j −= g,
     F_i += g, e_i, e_j += ½e, W += sym(g ⊗ d) (Voigt xx yy zz yz xz xy). A
     full list holds each pair twice: row i then adds to atom i alone, with
     half of e and W. Returns (E, W...)."""
     w = 1.0 if half else 0.5
-    v = np.zeros(7)
-    for i in range(len(row) - 1):
-        for k in range(row[i], row[i + 1]):
-            if B[k, 0] == 0.0:
-                continue
-            j = nbr[k]
-            dx = D[k, 0]
-            dy = D[k, 1]
-            dz = D[k, 2]
-            e, gx, gy, gz = _pair(m, m, dx, dy, dz, B[k, 0], B[k, 1], B[k, 2], i, j)
-            v[0] += w * e
-            v[1] += w * gx * dx
-            v[2] += w * gy * dy
-            v[3] += w * gz * dz
-            v[4] += 0.5 * w * (gy * dz + gz * dy)
-            v[5] += 0.5 * w * (gx * dz + gz * dx)
-            v[6] += 0.5 * w * (gx * dy + gy * dx)
-            if want_f:
-                F[i, 0] += gx
-                F[i, 1] += gy
-                F[i, 2] += gz
-                if half:
-                    F[j, 0] -= gx
-                    F[j, 1] -= gy
-                    F[j, 2] -= gz
-            if want_e:
-                energies[i] += 0.5 * e
-                if half:
-                    energies[j] += 0.5 * e
-    return v
+    bounds, fbuf, ebuf, acc = scatter_buffers(row, nthreads, want_f, want_e)
+    for t in nb.prange(nthreads):
+        e_sum = vxx = vyy = vzz = vyz = vxz = vxy = 0.0
+        for i in range(bounds[t], bounds[t + 1]):
+            for k in range(row[i], row[i + 1]):
+                if B[k, 0] == 0.0:
+                    continue
+                j = nbr[k]
+                dx = D[k, 0]
+                dy = D[k, 1]
+                dz = D[k, 2]
+                e, gx, gy, gz = _pair(m, m, dx, dy, dz, B[k, 0], B[k, 1], B[k, 2], i, j)
+                e_sum += w * e
+                vxx += w * gx * dx
+                vyy += w * gy * dy
+                vzz += w * gz * dz
+                vyz += 0.5 * w * (gy * dz + gz * dy)
+                vxz += 0.5 * w * (gx * dz + gz * dx)
+                vxy += 0.5 * w * (gx * dy + gy * dx)
+                if want_f:
+                    add_row(fbuf, t, i, 0, gx, gy, gz)
+                    if half:
+                        sub_row(fbuf, t, j, 0, gx, gy, gz)
+                if want_e:
+                    ebuf[t, i, 0] += 0.5 * e
+                    if half:
+                        ebuf[t, j, 0] += 0.5 * e
+        store_sums(acc, t, e_sum, vxx, vyy, vzz, vyz, vxz, vxy)
+    return reduce_scatter(reduce_threads, fbuf, F, ebuf, energies, acc)
 
 
 # -- the direct sum over all pairs (open systems) -------------------------------
