@@ -426,7 +426,8 @@ def test_a_non_finite_field_is_not_converged(memory, half):
     its, delta, status, *_ = solve.serial(1, row, nbr.astype(np.int32), J, s, W, Wn, st,
                                           np.full(n, 0.1), 1e-15, 6.4e-14, 50, 0.5,
                                           np.zeros_like(s), np.zeros_like(s), memory, True,
-                                          kernels.NO_FIELD, kernels.NO_ORDER, kernels.NO_ORDER)
+                                          kernels.NO_FIELD, kernels.NO_ORDER, kernels.NO_ORDER,
+                                          kernels.NO_FIELD)
     assert status == kernels.NOT_CONVERGED, (its, delta, status)
 
 
@@ -512,7 +513,8 @@ def test_colour_ordered_sweep_is_gauss_seidel():
     prow, pnbr, pc = ase_spin.neighbors.rows_in_order(pairs.row, pairs.j, c, order)
     its, _, status, which, *_ = kernels.midpoint_solve.serial(
         1, prow, pnbr, pc, s, W, Wn, st, scale, 3.0, 0.0, 1, 0.5, np.zeros_like(s),
-        np.zeros_like(s), 0, True, kernels.NO_FIELD, order, starts)  # "converged" after one sweep
+        np.zeros_like(s), 0, True, kernels.NO_FIELD, order, starts,
+        kernels.NO_FIELD)  # "converged" after one sweep
     assert its == 1 and status == kernels.CONVERGED
     got = W if which == 0 else Wn
     new = W0.copy()
@@ -526,7 +528,7 @@ def test_colour_ordered_sweep_is_gauss_seidel():
     kernels.midpoint_solve.serial(1, pairs.row, pairs.j, c, s, W, Wn, np.zeros_like(s),
                                   scale, 3.0, 0.0, 1, 0.5, np.zeros_like(s),
                                   np.zeros_like(s), 0, True, kernels.NO_FIELD, kernels.NO_ORDER,
-                                  kernels.NO_ORDER)
+                                  kernels.NO_ORDER, kernels.NO_FIELD)
     assert np.abs(Wn - new).max() > 1e-6
 
 
@@ -542,11 +544,13 @@ def _colour_solve(chunks_, colours, memory, dt_fs=3.0):
     args = (chunks_, pairs.row, pairs.j, c, s, W, Wn, st, dyn._scale(dt_fs * units.fs), 1e-15,
             6.4e-14, 100, 0.5, np.zeros_like(s), np.zeros_like(s), memory, True)
     if colours is None:  # index order
-        its, _, status, *_ = fn(*args, kernels.NO_FIELD, kernels.NO_ORDER, kernels.NO_ORDER)
+        its, _, status, *_ = fn(*args, kernels.NO_FIELD, kernels.NO_ORDER, kernels.NO_ORDER,
+                                kernels.NO_FIELD)
     else:  # the rows in colour order
         order, starts = pairs.colours()
         rows = ase_spin.neighbors.rows_in_order(pairs.row, pairs.j, c, order)
-        its, _, status, *_ = fn(args[0], *rows, *args[4:], kernels.NO_FIELD, order, starts)
+        its, _, status, *_ = fn(args[0], *rows, *args[4:], kernels.NO_FIELD, order, starts,
+                               kernels.NO_FIELD)
     assert status != kernels.NOT_CONVERGED
     return its, st
 
@@ -589,7 +593,7 @@ def test_colour_ordered_sweeps_give_the_same_bits_in_any_chunks():
         W, Wn, st, carry = s.copy(), np.zeros_like(s), np.zeros_like(s), np.zeros_like(s)
         its, _, status, which, *_ = fn(nthreads, *rows, s, W, Wn, st, scale, 1e-15,
                                        6.4e-14, 100, 0.5, np.zeros_like(s), carry, 0, True,
-                                       kernels.NO_FIELD, order, starts)
+                                       kernels.NO_FIELD, order, starts, kernels.NO_FIELD)
         assert status != kernels.NOT_CONVERGED and its > 4
         results.append((its, (W if which == 0 else Wn).copy(), st.copy(), carry.copy()))
     for its, W, st, carry in results[1:]:

@@ -85,6 +85,7 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
     pending = False  # the end forces begun in this round's pass
     keep = np.empty((0, 0, 6))
     no_order = np.zeros(0, dtype=np.int64)  # kernels.NO_ORDER: sweeps in index order
+    no_external = np.zeros((0, 3))  # kernels.NO_FIELD: no field held fixed
     settled_in = -1
     for rnd in range(policy.MAX_ROUNDS):
         F = FL.copy()
@@ -133,7 +134,7 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
         its, delta, status, which, measured, moved_w = solve_half(  # noqa: F821
             np.int64(1), row, nbr, c, s, W, Wnext, stilde, scale, use_tol, floor, max_iter,
             policy.start_contraction(theta), carry_s, carry, memory, use_local, field,
-            no_order, no_order)
+            no_order, no_order, no_external)
         if status == kernels.NOT_CONVERGED or policy.gives_up(its, measured, switch):
             return (GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
                     one_sweep, settled_round)
@@ -379,12 +380,12 @@ def run_frozen_steps(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, m
                     np.int64(1), full_row, full_nbr, full_c, s, W, Wnext, stilde,
                     scales[stage], tol, floor, max_iter[stage],
                     policy.start_contraction(theta[stage]), carry_s, carry, memory[stage],
-                    use_local, no_field, order, starts)
+                    use_local, no_field, order, starts, no_field)
             else:
                 its, delta, status, which, measured, moved = solve(  # noqa: F821
                     np.int64(1), row, nbr, c, s, W, Wnext, stilde, scales[stage], tol, floor,
                     max_iter[stage], policy.start_contraction(theta[stage]), carry_s, carry,
-                    memory[stage], use_local, no_field, no_order, no_order)
+                    memory[stage], use_local, no_field, no_order, no_order, no_field)
             if status == kernels.NOT_CONVERGED or policy.gives_up(its, measured, switch[stage]):
                 failed = True
                 break

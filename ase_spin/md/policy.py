@@ -25,7 +25,8 @@ __all__ = ["StepPolicy", "SOLVERS", "TOL_RANGE", "MAX_ROUNDS", "FIRST_SOLVE_FRAC
            "AUTO_SWITCH", "AUTO_FIRST_SWEEPS", "KEEP_GUESS", "first_tolerance",
            "start_contraction", "settled_qtol", "gives_up", "solver_settings",
            "auto_takes_local", "next_sweep_order", "INDEX_ORDER", "COLOUR_ORDER",
-           "INDEX_ORDER_KEPT"]
+           "INDEX_ORDER_KEPT", "HELD_SWITCH", "HELD_MEMORY",
+           "held_operators"]
 
 EPS = float(np.finfo(float).eps)
 
@@ -206,3 +207,25 @@ def next_sweep_order(order, local, sweeps, measured, theta_index):
     if order == INDEX_ORDER and sweeps >= COLOUR_FROM_SWEEPS:
         return COLOUR_ORDER, theta_index
     return order, theta_index
+
+
+#: A solve's outer iteration over the held fields (:func:`held_operators`)
+#: that contracts by more than this (measured from its second round) gives
+#: up: that stage then solves plainly, every field in every sweep. Dipolar
+#: fields contract it by far less at any step the spins allow.
+HELD_SWITCH = 0.5
+#: The Anderson memory of that outer iteration (kernels.midpoint_solve_held).
+HELD_MEMORY = MEMORY
+
+
+def held_operators(operators):
+    """(held, rest): the spin operators whose fields a midpoint solve holds
+    fixed while the others converge (those that declare ``expensive_field``:
+    one evaluation costs as much as hundreds of sweeps of the rest), and the
+    others; or None, where there are not both kinds (then holding a field
+    saves nothing: the plain solve). The split solve reaches the same
+    midpoint to the tolerance (kernels.midpoint_solve_held)."""
+    held = [op for op in operators if op.expensive_field]
+    if not held or len(held) == len(operators):
+        return None
+    return held, [op for op in operators if not op.expensive_field]

@@ -155,6 +155,11 @@ class SpinOperator:
       pairs: kept as per-thread partial sums), and optionally C u, in one pass
       (a step's forces at q with its end forces) — and ``finish_forces(keep,
       base, out)``, which adds those partial sums onto ``base``.
+    - ``expensive_field``: one evaluation of :meth:`field` costs as much as
+      many passes over the pairs of a short-range term (a long-range sum):
+      the collective midpoint solve holds it fixed while the other terms'
+      fields converge, and evaluates it again only once they have
+      (:func:`~ase_spin.md.policy.held_operators`).
 
     Non-magnetic atoms get zero field.
 
@@ -169,6 +174,7 @@ class SpinOperator:
     linear = False
     forces_with_field = False
     merges_forces = False
+    expensive_field = False
 
     def compiled(self):
         """Optional: this operator as compiled pieces of the integrators' fused

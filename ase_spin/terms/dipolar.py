@@ -116,6 +116,13 @@ class DipolarOperator(SpinOperator):
         self.other = other
 
     @property
+    def expensive_field(self):
+        """The Ewald sums and the direct sum: each field a sum over every
+        k-vector, mesh point or atom (10²–10³ exchange fields); the cutoff
+        form is a pair pass like any other."""
+        return self.method != "cut"
+
+    @property
     def site_unavailable(self):
         if self.method == "ewald":
             return ("the Ewald field of one spin is a sum over every k-vector, as dear as "

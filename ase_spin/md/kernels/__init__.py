@@ -13,8 +13,9 @@ from .predictor import (COEFFICIENTS, EXACT_ORDERS, LEAST_SQUARES_DEGREE, LOW_OR
                         PREDICTOR_DEPTH, best_extrapolation_order, best_order_rows,
                         difference_table, extrapolate, extrapolate_rows, increment,
                         max_abs_difference, newest_first)
-from .solvers import (NO_FIELD, NO_ORDER, end_points, linear_field_and_form, midpoint_solve,
-                      midpoint_solve_half, midpoint_solve_operators, midpoint_update)
+from .solvers import (NO_FIELD, NO_ORDER, end_points, linear_field_and_form,
+                      midpoint_solve, midpoint_solve_half, midpoint_solve_held,
+                      midpoint_solve_operators, midpoint_update)
 from .state import commit_state, first_nonfinite_row, same, same_rows
 
 __all__ = ["CONVERGED", "ROUNDOFF", "NOT_CONVERGED", "MEMORY", "MAX_TURN", "BLOCK", "update_row",
@@ -22,7 +23,7 @@ __all__ = ["CONVERGED", "ROUNDOFF", "NOT_CONVERGED", "MEMORY", "MAX_TURN", "BLOC
            "pair_field_row", "coloured_spins", "coloured_sweep", "after_sweep",
            "anderson_mix", "anderson_mix_serial", "NO_FIELD", "NO_ORDER", "midpoint_solve",
            "midpoint_solve_half", "midpoint_update", "end_points",
-           "linear_field_and_form", "midpoint_solve_operators", "drift", "kick",
+           "linear_field_and_form", "midpoint_solve_operators", "midpoint_solve_held", "drift", "kick",
            "kick_drift", "PREDICTOR_DEPTH", "LEAST_SQUARES_DEGREE", "EXACT_ORDERS",
            "COEFFICIENTS", "LOW_ORDER_COEFFICIENTS", "newest_first", "extrapolate",
            "increment", "extrapolate_rows", "max_abs_difference",

@@ -24,6 +24,7 @@ from ..._jit.threads import threaded
 from .anderson import after_sweep, anderson_mix, anderson_mix_serial
 from .midpoint import (MEMORY, NOT_CONVERGED, coloured_spins, coloured_sweep, end_points_of_rows,
                        local_midpoint_direction, pair_field_row, update_row)
+from .predictor import max_abs_difference
 
 #: ``field`` of the midpoint solvers when no midpoint fields are wanted: an
 #: empty array rather than None, so that callers that want them (the fused
@@ -58,13 +59,13 @@ _HALF = False
 
 
 def _midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, floor, max_iter,
-                    theta0, carry, carry_out, memory, local, field, order, starts):
+                    theta0, carry, carry_out, memory, local, field, order, starts, external):
     r"""Solve the spherical-midpoint equation for fixed pair couplings J̄_ij:
 
     .. math::
 
         \tilde{\mathbf s}_i = \mathbf s_i + c\, \mathbf W_i \times \bar{\mathbf B}_i,
-        \qquad \bar{\mathbf B}_i = \sum_j \bar J_{ij} \mathbf W_j, \qquad
+        \qquad \bar{\mathbf B}_i = \sum_j \bar J_{ij} \mathbf W_j + \mathbf E_i, \qquad
         \mathbf W_i = \frac{\mathbf s_i + \tilde{\mathbf s}_i}{|\mathbf s_i + \tilde{\mathbf s}_i|},
 
     with c = hσ/ħ (per spin: ``scale`` holds c_i, which carries each spin's
@@ -120,9 +121,13 @@ def _midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, f
     first sweep: how far the starting guess was from the result). ``field``,
     if not empty (:data:`NO_FIELD`), receives the midpoint fields B̄_i
     of the last sweep's input iterate (magnetic rows; the others are not
-    written).
+    written). ``external``, if not empty (:data:`NO_FIELD`), is a field E
+    fixed during the solve (the fields a solve holds while the rest converges:
+    :func:`midpoint_solve_held`), added to every spin's; with it the sweeps
+    take index order (``order`` not read).
     """
     n = len(row) - 1
+    held = external.shape[0] > 0
     bounds = balanced_chunks(row, nthreads)
     if _HALF:  # the update pass reads no pairs: the atoms in even chunks
         atoms = np.empty(nthreads + 1, dtype=np.int64)
@@ -144,7 +149,7 @@ def _midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, f
     status = -1
     it = 0
     by_colour = order
-    coloured = local and len(by_colour) > 0
+    coloured = local and len(by_colour) > 0 and not held
     colour_starts = starts
     threaded_colours = coloured and nthreads > 1 and len(colour_starts) > 1
     for it in range(1, max_iter + 1):
@@ -209,6 +214,10 @@ def _midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, f
                         continue
                     if not _HALF:
                         bx, by, bz = pair_field_row(i, row, nbr, Jbar, cur)
+                    if held:
+                        bx += external[i, 0]
+                        by += external[i, 1]
+                        bz += external[i, 2]
                     if field is not None and field.shape[0] > 0:
                         field[i, 0] = bx
                         field[i, 1] = by
@@ -356,9 +365,11 @@ def linear_field_and_form(nthreads, row, nbr, c, half, u, y, x, out):
 
 
 def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, max_iter,
-                             theta0, carry, carry_out, mean, memory=MEMORY, local=True):
-    r""":func:`midpoint_solve` for any spin terms: B̄_i = Σ_terms B̄_i(W), each
-    operator adding its own midpoint field (``field(W, out, mean)``) every
+                             theta0, carry, carry_out, mean, memory=MEMORY, local=True,
+                             external=NO_FIELD):
+    r""":func:`midpoint_solve` for any spin terms: B̄_i = Σ_terms B̄_i(W) (+ the
+    fixed field ``external``, if not empty), each operator adding its own
+    midpoint field (``field(W, out, mean)``) every
     sweep. The same updates (a single-site term's field is held at the
     current W_i in the locally exact update: still the same fixed point),
     Anderson acceleration, reflection form, compensated sum,
@@ -382,7 +393,10 @@ def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, 
     measured = -1.0
     delta = first = 0.0
     for it in range(1, max_iter + 1):
-        B[:] = 0.0
+        if external.shape[0] > 0:
+            B[:] = external
+        else:
+            B[:] = 0.0
         for op in operators:
             op.field(cur, B, mean)
         delta = midpoint_update(nthreads, s, cur, nxt, B, scale, stilde, carry, carry_out,
@@ -402,3 +416,79 @@ def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, 
     if local:
         end_points(nthreads, s, nxt, stilde, carry, carry_out, jacobi_rows)
     return max_iter, delta, NOT_CONVERGED, which, measured, first
+
+
+def midpoint_solve_held(inner, held, W, Wnext, tol, floor, max_outer, theta0, mean, switch,
+                        memory=MEMORY):
+    r"""The midpoint solve with the fields of the operators ``held`` held fixed
+    while the others converge (long-range fields, each evaluation as dear as
+    hundreds of sweeps of the rest): the outer iteration
+
+    .. math:: \mathbf E^{(k)} = \bar{\mathbf B}_{\rm held}(\mathbf W^{(k)}), \qquad
+              g(\mathbf W^{(k)}) = \text{the midpoint of }
+              \bar{\mathbf B} = \bar{\mathbf B}_{\rm rest}(\mathbf W) + \mathbf E^{(k)},
+
+    ``inner(cur, nxt, E)`` solving the inner equation to ``tol`` from ``cur``
+    (buffers ``cur``, ``nxt``; the return values of :func:`midpoint_solve`,
+    its end points and carry written by its last call), and W⁽ᵏ⁺¹⁾ = g(W⁽ᵏ⁾),
+    or with ``memory`` m > 0 the Anderson combination of the last m + 1
+    rounds (:func:`anderson_mix`). A fixed point of the outer map solves the
+    full equation, so the solve reaches the plain solve's midpoint to the
+    tolerance: the method, its order and its symplecticity are unchanged. The
+    plain outer map contracts by about c|∂B̄_held/∂W| (weak for dipolar
+    fields). It stops by the rule of the sweeps (:func:`after_sweep`, on the
+    changes max|g(W⁽ᵏ⁾) − W⁽ᵏ⁾|, the contraction ``theta0`` until two are
+    measured), after ``max_outer`` rounds, or when it contracts by more than
+    ``switch`` (gave up: the plain solve is then the one to take). The
+    result is the last g(W⁽ᵏ⁾), whose end points the last inner solve wrote.
+
+    Returns (inner sweeps in all, the last outer change, status, index of the
+    buffer holding the result: 0 = ``W``, 1 = ``Wnext``, the inner sweeps'
+    last measured contraction or −1, the first outer change (how far the
+    starting guess was from the result), the outer contraction measured or
+    −1, whether it gave up)."""
+    external = np.empty_like(W)
+    x = W.copy()  # the outer iterate W⁽ᵏ⁾
+    n = W.shape[0]
+    dF = np.empty((memory, n, 3))
+    dG = np.empty((memory, n, 3))
+    fprev = np.empty((n if memory > 0 else 0, 3))
+    gprev = np.empty_like(fprev)
+    gram = np.zeros((memory, memory))
+    mix = anderson_mix if threads.count() > 1 else anderson_mix_serial
+    cur, nxt = W, Wnext
+    which = 0  # the buffer cur is: 0 = W, 1 = Wnext
+    sweeps = 0
+    inner_theta = -1.0
+    previous = np.inf
+    theta = theta0
+    measured = -1.0
+    change = first = 0.0
+    for k in range(1, max_outer + 1):
+        external[:] = 0.0
+        for op in held:
+            op.field(x, external, mean)
+        if k > 1:
+            cur[:] = x
+        its, delta, status, result, inner_measured, _ = inner(cur, nxt, external)
+        sweeps += its
+        if 0.0 <= inner_measured < 1.0:
+            inner_theta = inner_measured
+        if result == 1:
+            cur, nxt = nxt, cur
+            which = 1 - which
+        if status == NOT_CONVERGED:
+            return sweeps, delta, status, which, inner_theta, first, measured, False
+        change = max_abs_difference(cur, x)
+        status, theta, measured, first = after_sweep(k, change, previous, theta, measured,
+                                                     first, tol, floor)
+        if status >= 0:
+            return sweeps, change, status, which, inner_theta, first, measured, False
+        if k > 1 and measured > switch:
+            return sweeps, change, NOT_CONVERGED, which, inner_theta, first, measured, True
+        previous = change
+        if memory > 0:
+            mix(k, x, cur, fprev, gprev, dF, dG, gram)
+        else:
+            x[:] = cur
+    return sweeps, change, NOT_CONVERGED, which, inner_theta, first, measured, False
