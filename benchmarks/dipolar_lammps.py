@@ -38,13 +38,12 @@ TESTS = os.path.join(HERE, os.pardir, "tests")
 sys.path.insert(0, HERE)
 sys.path.insert(0, TESTS)
 
+from machine import best_time, describe  # noqa: E402
+
 
 def ours(n, method, rc, accuracy):
     """Our timings (s) in this process: k-space part, a field, an evaluation."""
-    import time
-
     from ase_spin import Dipolar, Hamiltonian, Want, get_spins
-    from ase_spin._jit import threads
     from ase_spin.scenes import fcc_cobalt
 
     atoms = fcc_cobalt(n)
@@ -58,14 +57,7 @@ def ours(n, method, rc, accuracy):
     q = atoms.positions
 
     def best(f, reps=3):
-        with threads.threads_for(N):
-            f()
-            times = []
-            for _ in range(reps):
-                t = time.perf_counter()
-                f()
-                times.append(time.perf_counter() - t)
-        return min(times)
+        return best_time(f, N, reps)
 
     op = ev.spin_operators(q, half=True)[0]
     m = mu[:, None] * s
@@ -144,7 +136,6 @@ def main():
     if args.child:
         child(args)
         return
-    from machine import describe
 
     print(describe())
     print(f"# load: {os.getloadavg()[0]:.2f} (1 min)")

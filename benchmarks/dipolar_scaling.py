@@ -29,6 +29,9 @@ import sys
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+
+from machine import best_time, describe  # noqa: E402
 
 
 def child(n, method, rc, accuracy, counts):
@@ -52,14 +55,7 @@ def child(n, method, rc, accuracy, counts):
     q = atoms.positions
 
     def best(f, reps=3):
-        with threads.threads_for(N):  # as the integrators run them
-            f()
-            times = []
-            for _ in range(reps):
-                t = time.perf_counter()
-                f()
-                times.append(time.perf_counter() - t)
-        return min(times)
+        return best_time(f, N, reps)
 
     B = np.zeros_like(s)
     prepare = best(lambda: ev.spin_operators(q, half=True), 2)
@@ -103,7 +99,8 @@ def main():
         child(int(args.child[0]), args.child[1], args.rc, args.accuracy, args.threads)
         return
     rows = []
-    print(f"rc = {args.rc} Å, accuracy = {args.accuracy:g}")
+    print(describe())
+    print(f"rc = {args.rc} Å, accuracy = {args.accuracy:g}; load {os.getloadavg()[0]:.2f}")
     print(f"{'N':>8} {'method':>6} {'mesh':>16} {'prepare s':>10} {'field s':>10} "
           f"{'E+F s':>10} {'field/exch':>10} {'peak MB':>8} {'kB/atom':>8}"
           + "".join(f" {f'field {c} thr':>12}" for c in args.threads))

@@ -35,3 +35,20 @@ def _threads_started():
         return True
     except ValueError:
         return False
+
+
+def best_time(f, natoms, reps=3):
+    """The shortest of ``reps`` timed calls of ``f()`` (s), after one untimed
+    call, with the threads the integrators run at ``natoms`` atoms."""
+    import time
+
+    from ase_spin._jit import threads
+
+    with threads.threads_for(natoms):
+        f()
+        times = []
+        for _ in range(reps):
+            t = time.perf_counter()
+            f()
+            times.append(time.perf_counter() - t)
+    return min(times)

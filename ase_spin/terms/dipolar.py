@@ -118,8 +118,9 @@ class DipolarOperator(SpinOperator):
     @property
     def expensive_field(self):
         """The Ewald sums and the direct sum: each field a sum over every
-        k-vector, mesh point or atom (10²–10³ exchange fields); the cutoff
-        form is a pair pass like any other."""
+        k-vector, mesh point or atom (its cost against exchange's:
+        docs/benchmarks.md, "Dipolar: cost against N"); the cutoff form is a
+        pair pass like any other."""
         return self.method != "cut"
 
     @property

@@ -379,13 +379,7 @@ def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, 
     B = np.empty_like(s)
     nthreads = threads.count()
     mix = anderson_mix if nthreads > 1 else anderson_mix_serial
-    n = s.shape[0]
-    dF = np.empty((memory, n, 3))
-    dG = np.empty((memory, n, 3))
-    fprev = np.empty((n if memory > 0 else 0, 3))
-    gprev = np.empty_like(fprev)
-    gram = np.zeros((memory, memory))
-    jacobi_rows = np.zeros(n if local else 0, dtype=np.bool_)
+    dF, dG, fprev, gprev, gram, jacobi_rows = _solver_buffers(s.shape[0], memory, local)
     cur, nxt = W, Wnext
     which = 1  # as in midpoint_solve
     previous = np.inf
@@ -449,12 +443,7 @@ def midpoint_solve_held(inner, held, W, Wnext, tol, floor, max_outer, theta0, me
     −1, whether it gave up)."""
     external = np.empty_like(W)
     x = W.copy()  # the outer iterate W⁽ᵏ⁾
-    n = W.shape[0]
-    dF = np.empty((memory, n, 3))
-    dG = np.empty((memory, n, 3))
-    fprev = np.empty((n if memory > 0 else 0, 3))
-    gprev = np.empty_like(fprev)
-    gram = np.zeros((memory, memory))
+    dF, dG, fprev, gprev, gram, _ = _solver_buffers(W.shape[0], memory, False)
     mix = anderson_mix if threads.count() > 1 else anderson_mix_serial
     cur, nxt = W, Wnext
     which = 0  # the buffer cur is: 0 = W, 1 = Wnext
