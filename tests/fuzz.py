@@ -1526,29 +1526,40 @@ def families(quick=False):
     }
 
 
-# -- isolation: a child process per family, restarted after a death -----------------
+# -- isolation: child processes, restarted after a death ----------------------
 
-def _child(family, start, quick):
-    cases = families(quick)[family]
-    for index in range(start, len(cases)):
-        print(json.dumps({"start": index}), flush=True)
-        verdict, detail = run_case(cases[index])
-        print(json.dumps({"index": index, "name": cases[index].name, "verdict": verdict,
+def _plan(names, quick):
+    """(family, index in the family) of every case of the families ``names``, in order."""
+    built = families(quick)
+    return built, [(family, index) for family in names for index in range(len(built[family]))]
+
+
+def _child(names, start, quick):
+    built, plan = _plan(names, quick)
+    for position in range(start, len(plan)):
+        family, index = plan[position]
+        case = built[family][index]
+        print(json.dumps({"start": position}), flush=True)
+        verdict, detail = run_case(case)
+        print(json.dumps({"position": position, "name": case.name, "verdict": verdict,
                           "detail": detail}), flush=True)
 
 
-def run_isolated(family, quick=False, timeout=1800):
-    """Run a family's cases in child processes; a case during which the child
-    dies is a ``crash`` and the next child starts after it. Returns a list of
-    (name, verdict, detail)."""
-    names = [c.name for c in families(quick)[family]]
+def run_isolated_all(names, quick=False, timeout=1800):
+    """Run the cases of the families ``names``, one family after another, in
+    child processes: one Python start for them all while none dies (a start
+    and the kernels' first loads cost about as much as a quick family's
+    cases). A case during which the child dies is a ``crash`` and the next
+    child starts after it. Returns {family: [(name, verdict, detail), ...]}."""
+    names = list(names)
+    built, plan = _plan(names, quick)
     results = {}
     start = 0
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [str(HERE), PACKAGE_PATH, os.environ.get("PYTHONPATH", "")]))
-    while start < len(names):
+    while start < len(plan):
         code = (f"import sys; sys.path.insert(0, {str(HERE)!r}); import fuzz; "
-                f"fuzz._child({family!r}, {start}, {quick!r})")
+                f"fuzz._child({names!r}, {start}, {quick!r})")
         proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                               timeout=timeout, env=env, cwd=tempfile.gettempdir())
         last_started = None
@@ -1560,15 +1571,25 @@ def run_isolated(family, quick=False, timeout=1800):
             if "start" in msg:
                 last_started = msg["start"]
             else:
-                results[msg["index"]] = (msg["name"], msg["verdict"], msg["detail"])
+                results[msg["position"]] = (msg["name"], msg["verdict"], msg["detail"])
         if proc.returncode == 0:
             break
         crashed = last_started if last_started is not None else start
         if crashed not in results:
-            results[crashed] = (names[crashed], "crash",
+            family, index = plan[crashed]
+            results[crashed] = (built[family][index].name, "crash",
                                 f"exit {proc.returncode}: {proc.stderr.strip()[-200:]}")
         start = crashed + 1
-    return [results.get(i, (n, "crash", "never ran")) for i, n in enumerate(names)]
+    outcome = {family: [] for family in names}
+    for position, (family, index) in enumerate(plan):
+        outcome[family].append(results.get(position, (built[family][index].name, "crash",
+                                                      "never ran")))
+    return outcome
+
+
+def run_isolated(family, quick=False, timeout=1800):
+    """:func:`run_isolated_all` of one family: its list of (name, verdict, detail)."""
+    return run_isolated_all([family], quick, timeout)[family]
 
 
 def campaign(quick=False, only=None, isolated=True):

@@ -520,19 +520,57 @@ def test_write_lammps_forms(tmp_path):
         _deck(tmp_path, _scene("triclinic")[0], [Dipolar(5.0, "ewald", prefactor=DIPOLAR_LAMMPS)])
 
 
+#: LAMMPS 2025.7.22's ``ewald/dipole/spin`` slab correction stops with this error
+#: when a member it never sets for spins (KSpace::qsum, left uninitialised: a
+#: defect of LAMMPS) happens to hold a non-zero value: in about one process in
+#: three here, whatever the deck.
+_QSUM_DEFECT = "Cannot (yet) use kspace slab correction with long-range spins"
+#: The deck run in a fresh process (the ``lammps`` module), its energy printed.
+_DECK_ENERGY = ("import sys; sys.path.insert(0, {tests!r}); from lammps_peer import load_lammps\n"
+                "lmp = load_lammps().lammps(cmdargs=['-log', 'none', '-screen', 'none', "
+                "'-nocite'])\nlmp.file('in.spin')\nprint(repr(lmp.get_thermo('pe')))\n"
+                "lmp.close()\n")
+
+
 def _run_deck(directory):
-    """The deck run by the lammps module in this process; its potential energy."""
+    """The deck run by the lammps module in this process; its potential energy.
+    A run that meets LAMMPS's uninitialised ``qsum`` (:data:`_QSUM_DEFECT`) is
+    run again in fresh processes (each with its own memory), up to 8 times: any
+    other error, or that one 9 times over, fails."""
     lammps = load_lammps()
     cwd = os.getcwd()
     os.chdir(directory)
     try:
         lmp = lammps.lammps(cmdargs=["-log", "none", "-screen", "none", "-nocite"])
-        lmp.file("in.spin")
+        try:
+            lmp.file("in.spin")
+        except Exception as error:
+            lmp.close()
+            if _QSUM_DEFECT not in str(error):
+                raise
+            return _run_deck_fresh(directory, str(error))
         energy = lmp.get_thermo("pe")
         lmp.close()
     finally:
         os.chdir(cwd)
     return energy
+
+
+def _run_deck_fresh(directory, first_error, attempts=8):
+    import subprocess
+    import sys
+
+    code = _DECK_ENERGY.format(tests=os.path.dirname(os.path.abspath(__file__)))
+    errors = [first_error]
+    for _ in range(attempts):
+        done = subprocess.run([sys.executable, "-c", code], cwd=directory, capture_output=True,
+                              text=True, timeout=300)
+        if done.returncode == 0:
+            return float(done.stdout.split()[-1])
+        errors.append(done.stderr[-300:])
+        if _QSUM_DEFECT not in done.stderr:
+            break
+    raise AssertionError("the deck did not run in LAMMPS:\n" + "\n".join(errors))
 
 
 @pytest.mark.skipif(not lammps_available(), reason="lammps not importable")

@@ -1,8 +1,9 @@
 """The fuzz campaign of tests/fuzz.py: every case a documented error with the
 Atoms unchanged, or a correct finite result; no process dies.
 
-The default run takes the quick subset (each family in a child process, so a
-crash fails the test instead of killing the run); ``-m slow`` runs the whole
+The default run takes the quick subset (all families in one sequence of child
+processes, restarted after a death, so a crash fails its case's test instead of
+killing the run); ``-m slow`` runs the whole
 campaign (every interrupt point, every truncation byte, orders 2 and 4).
 """
 
@@ -19,22 +20,27 @@ from conftest import PACKAGE_PATH
 FAMILIES = list(fuzz.families(quick=True))
 
 
-def _assert_clean(family, quick):
-    outcome = fuzz.run_isolated(family, quick=quick)
+@pytest.fixture(scope="module")
+def quick_outcomes():
+    """Every quick family's outcome, from one sequence of child processes."""
+    return fuzz.run_isolated_all(FAMILIES, quick=True)
+
+
+def _assert_clean(outcome):
     bad = [(name, verdict, detail) for name, verdict, detail in outcome
            if verdict not in ("ok-error", "ok-result")]
     assert outcome and not bad, "\n".join(f"[{v}] {n}: {d}" for n, v, d in bad)
 
 
 @pytest.mark.parametrize("family", FAMILIES)
-def test_fuzz_family(family):
-    _assert_clean(family, quick=True)
+def test_fuzz_family(family, quick_outcomes):
+    _assert_clean(quick_outcomes[family])
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("family", FAMILIES)
 def test_fuzz_family_full(family):
-    _assert_clean(family, quick=False)
+    _assert_clean(fuzz.run_isolated(family, quick=False))
 
 
 def test_hypothesis_spins():

@@ -40,6 +40,15 @@ ONE_RUNNER = "ASE_SPIN_TESTS_ONE_RUNNER"
 #: two threads (each parallel region waits for both, so a second process
 #: holding one of the two cores stalls them at every region).
 ALONE = ("test_reproducibility.py",)
+#: Test files the child starts with, in this order, before taking files from
+#: the back of the list: files whose kernels are mostly their own (Monte
+#: Carlo, the dipolar sums, the Gaussian stream, EAM, spectra, ...), so that
+#: the child compiles those while this process compiles the common path of
+#: the integrators (pair lists, exchange geometry, midpoint solves), instead
+#: of both compiling the same kernels at the same time early in a cold run.
+CHILD_FIRST = ("test_import_graph.py", "test_gaussian.py", "test_montecarlo.py",
+               "test_dipolar_mesh.py", "test_dipolar.py", "test_eam.py", "test_spectra.py",
+               "test_io.py", "test_landscapes.py")
 #: The test that runs test_compilation's scan of every kernel's signatures (a
 #: process of its own): taken by whichever runner runs out of files first
 #: (the kernels are in numba's cache by then, so the scan loads them rather
@@ -139,7 +148,9 @@ def pytest_runtestloop(session):
 
     groups, scan, tail = _groups(session.items)
     if is_child():
-        groups, tail = groups[::-1], []
+        first = {name: k for k, name in enumerate(CHILD_FIRST)}
+        groups, tail = sorted(groups[::-1], key=lambda g: first.get(g[0].split("/")[-1],
+                                                                    len(first))), []
     groups = groups + scan
     # One active thread each while both run: two processes of two threads on
     # two cores would wait at every parallel region for a descheduled worker

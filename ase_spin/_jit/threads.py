@@ -7,6 +7,13 @@ so there the launches cost more than the work. Each kernel is therefore
 compiled twice from one source: threaded (``prange`` over threads) and serial
 (``prange`` read as ``range``). Code that evaluates a system says how large it
 is with :func:`threads_for`; kernels called inside pick their twin from that.
+
+The work of one chunk of the heavier kernels' ``prange`` loops is a function
+of its own (``_<kernel>_chunk``, taking the chunk's index as an int64): numba
+compiles it once, and the threaded kernel and its serial twin are thin loops
+calling it, rather than each compiling the whole body again (numba turns a
+``prange`` loop into a function of its own as well). The same arithmetic in
+the same order: the same bits.
 The serial twins exist only for speed: ``benchmarks/small_systems.py`` shows
 what they save (docs/benchmarks.md, "Why each fast path exists").
 """

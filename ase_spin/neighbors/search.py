@@ -234,13 +234,15 @@ def _bin_along(c, n, periodic):
     return c, 0, 0 <= c < n
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _grid_row(i, pos, cell, bins, off, start, order, psorted, osorted, nbins, rb, periodic,
               cut2, hw, fill, k0, j_out, img_out, s_out, lookup, present):
     """Visit atom i's neighbours j ≥ i (j = i: images with a lexicographically
     positive shift) within sqrt(cut2): count them, mark their shifts' keys in
     ``present`` (when not ``fill``), or write them from k0 on (j, and the image
-    index ``lookup[key]``, or the shift itself when ``lookup`` is empty)."""
+    index ``lookup[key]``, or the shift itself when ``lookup`` is empty). One
+    compiled function that both passes call (not inlined into each: compiled
+    once, and a call per atom costs nothing beside its scan of the bins)."""
     b0 = bins[i, 0]
     b1 = bins[i, 1]
     b2 = bins[i, 2]
@@ -311,9 +313,10 @@ def _grid_count(pos, cell, bins, off, start, order, psorted, osorted, nbins, rb,
     empty_s = np.zeros((0, 3), dtype=np.int64)
     for c in nb.prange(nchunks):
         for i in range(n * c // nchunks, n * (c + 1) // nchunks):
-            counts[i + 1] = _grid_row(i, pos, cell, bins, off, start, order, psorted, osorted,
-                                      nbins, rb, periodic, cut2, hw, False, 0, empty_j,
-                                      empty_img, empty_s, empty_img, present[c])
+            counts[i + 1] = _grid_row(np.int64(i), pos, cell, bins, off, start, order, psorted,
+                                      osorted, nbins, rb, periodic, cut2, hw, np.bool_(False),
+                                      np.int64(0), empty_j, empty_img, empty_s, empty_img,
+                                      present[c])
 
 
 @nb.njit(cache=True, parallel=prange_only())
@@ -322,8 +325,9 @@ def _grid_fill(pos, cell, bins, off, start, order, psorted, osorted, nbins, rb, 
     n = pos.shape[0]
     none = np.zeros(0, dtype=np.bool_)
     for i in nb.prange(n):
-        _grid_row(i, pos, cell, bins, off, start, order, psorted, osorted, nbins, rb,
-                  periodic, cut2, hw, True, row[i], j_out, img_out, s_out, lookup, none)
+        _grid_row(np.int64(i), pos, cell, bins, off, start, order, psorted, osorted, nbins, rb,
+                  periodic, cut2, hw, np.bool_(True), np.int64(row[i]), j_out, img_out, s_out,
+                  lookup, none)
 
 
 @nb.njit(cache=True, parallel=prange_only())

@@ -163,10 +163,19 @@ def geometry_kernel(pos, row, nbr, image, images, types, table, J, g, G, other, 
     want_mean = other.shape[0] > 0
     stored = G.shape[0] > 0
     for blk in nb.prange((n + _GEOMETRY_BLOCK - 1) // _GEOMETRY_BLOCK):
-        lo = blk * _GEOMETRY_BLOCK
-        hi = min(n, lo + _GEOMETRY_BLOCK)
-        _geometry_table_block(lo, hi, pos, row, nbr, image, images, types, table, J, g, G,
-                              other, Jbar, want_mean, stored)
+        _geometry_kernel_chunk(np.int64(blk), n, pos, row, nbr, image, images, types, table, J, g,
+                               G, other, Jbar, want_mean, stored)
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _geometry_kernel_chunk(blk, n, pos, row, nbr, image, images, types, table, J, g, G, other,
+                           Jbar, want_mean, stored):
+    """One chunk ``blk`` of :func:`geometry_kernel`'s threaded loop: its work,
+    compiled once for the threaded kernel and its serial twin."""
+    lo = blk * _GEOMETRY_BLOCK
+    hi = min(n, lo + _GEOMETRY_BLOCK)
+    _geometry_table_block(lo, hi, pos, row, nbr, image, images, types, table, J, g, G,
+                          other, Jbar, want_mean, stored)
 
 
 @nb.njit(cache=True)
@@ -267,9 +276,8 @@ def geometry_single(pos, row, nbr, image, images, rc2, form, p0, p1, p2, J, g, G
     stored = G.shape[0] > 0
     if form == _BETHE_SLATER:
         for b in nb.prange((n + _GEOMETRY_BLOCK - 1) // _GEOMETRY_BLOCK):
-            _bethe_slater_block(b * _GEOMETRY_BLOCK, min(n, (b + 1) * _GEOMETRY_BLOCK), pos,
-                                row, nbr, image, images, rc2, p0, p1, p2, J, g, G, other,
-                                Jbar, want_mean, stored)
+            _geometry_single_chunk(np.int64(b), pos, row, nbr, image, images, rc2, p0, p1, p2, J,
+                                   g, G, other, Jbar, want_mean, stored, n)
         return
     for i in nb.prange(n):
         for k in range(row[i], row[i + 1]):
@@ -290,6 +298,16 @@ def geometry_single(pos, row, nbr, image, images, rc2, form, p0, p1, p2, J, g, G
                 Jbar[k] = 0.5 * (other[k] + Jk)
 
 
+@nb.njit(cache=True, error_model="numpy")
+def _geometry_single_chunk(b, pos, row, nbr, image, images, rc2, p0, p1, p2, J, g, G, other, Jbar,
+                           want_mean, stored, n):
+    """One chunk ``b`` of :func:`geometry_single`'s threaded loop: its work,
+    compiled once for the threaded kernel and its serial twin."""
+    _bethe_slater_block(b * _GEOMETRY_BLOCK, min(n, (b + 1) * _GEOMETRY_BLOCK), pos,
+                        row, nbr, image, images, rc2, p0, p1, p2, J, g, G, other,
+                        Jbar, want_mean, stored)
+
+
 @threaded(always=True, reduce_threads=lambda: reduce_threads_serial)
 def direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B, F, energies,
                   want_b, want_f, want_energy, want_energies, want_virial):
@@ -306,61 +324,71 @@ def direct_kernel(nthreads, pos, row, nbr, image, images, types, table, s, c, B,
     bounds, fbuf, ebuf, acc = scatter_buffers(row, nthreads, want_f, want_energies)
     bbuf = thread_buffer(nthreads, len(row) - 1, want_b, 3)
     for t in nb.prange(nthreads):
-        e = vxx = vyy = vzz = vyz = vxz = vxy = 0.0
-        for i in range(bounds[t], bounds[t + 1]):
-            if (i - bounds[t]) % _GEOMETRY_BLOCK == 0:  # the next block's exponentials
-                k0 = row[i]
-                xs, exs, ds = _exp_arguments(i, min(bounds[t + 1], i + _GEOMETRY_BLOCK), pos,
-                                             row, nbr, image, images, types, table)
-            ti = types[i]
-            sx = s[i, 0]
-            sy = s[i, 1]
-            sz = s[i, 2]
-            bx = by = bz = 0.0
-            fx = fy = fz = ei = 0.0
-            for k in range(row[i], row[i + 1]):
-                j = nbr[k]
-                tj = types[j]
-                b = k - k0
-                dx, dy, dz, r2 = ds[0, b], ds[1, b], ds[2, b], ds[3, b]
-                if r2 >= table[ti, tj, _RC2]:
-                    continue
-                Jk, g = _coupling_given_exp(table, ti, tj, r2, xs[b], exs[b])
-                ux = s[j, 0]
-                uy = s[j, 1]
-                uz = s[j, 2]
-                w = sx * ux + sy * uy + sz * uz - c
-                ei -= Jk * w
-                if want_b:
-                    bx += Jk * ux
-                    by += Jk * uy
-                    bz += Jk * uz
-                    add_row(bbuf, t, j, 0, Jk * sx, Jk * sy, Jk * sz)
-                wg = w * g
-                if want_f:
-                    gx = wg * dx
-                    gy = wg * dy
-                    gz = wg * dz
-                    fx -= gx
-                    fy -= gy
-                    fz -= gz
-                    add_row(fbuf, t, j, 0, gx, gy, gz)
-                if want_energies:
-                    ebuf[t, j, 0] -= 0.5 * Jk * w
-                if want_virial:
-                    vxx -= wg * dx * dx
-                    vyy -= wg * dy * dy
-                    vzz -= wg * dz * dz
-                    vyz -= wg * dy * dz
-                    vxz -= wg * dx * dz
-                    vxy -= wg * dx * dy
-            if want_b:
-                add_row(bbuf, t, i, 0, bx, by, bz)
-            if want_f:
-                add_row(fbuf, t, i, 0, fx, fy, fz)
-            if want_energies:
-                ebuf[t, i, 0] += 0.5 * ei
-            e += ei
-        store_sums(acc, t, e, vxx, vyy, vzz, vyz, vxz, vxy)
+        _direct_kernel_chunk(np.int64(t), want_b, want_f, want_energies, bounds, types, s,
+                             want_virial, row, pos, nbr, image, images, table, c, bbuf, fbuf,
+                             ebuf, acc)
     reduce_threads(bbuf, B)
     return reduce_scatter(reduce_threads, fbuf, F, ebuf, energies, acc)
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _direct_kernel_chunk(t, want_b, want_f, want_energies, bounds, types, s, want_virial, row,
+                         pos, nbr, image, images, table, c, bbuf, fbuf, ebuf, acc):
+    """One chunk ``t`` of :func:`direct_kernel`'s threaded loop: its work,
+    compiled once for the threaded kernel and its serial twin."""
+    e = vxx = vyy = vzz = vyz = vxz = vxy = 0.0
+    for i in range(bounds[t], bounds[t + 1]):
+        if (i - bounds[t]) % _GEOMETRY_BLOCK == 0:  # the next block's exponentials
+            k0 = row[i]
+            xs, exs, ds = _exp_arguments(i, min(bounds[t + 1], i + _GEOMETRY_BLOCK), pos,
+                                         row, nbr, image, images, types, table)
+        ti = types[i]
+        sx = s[i, 0]
+        sy = s[i, 1]
+        sz = s[i, 2]
+        bx = by = bz = 0.0
+        fx = fy = fz = ei = 0.0
+        for k in range(row[i], row[i + 1]):
+            j = nbr[k]
+            tj = types[j]
+            b = k - k0
+            dx, dy, dz, r2 = ds[0, b], ds[1, b], ds[2, b], ds[3, b]
+            if r2 >= table[ti, tj, _RC2]:
+                continue
+            Jk, g = _coupling_given_exp(table, ti, tj, r2, xs[b], exs[b])
+            ux = s[j, 0]
+            uy = s[j, 1]
+            uz = s[j, 2]
+            w = sx * ux + sy * uy + sz * uz - c
+            ei -= Jk * w
+            if want_b:
+                bx += Jk * ux
+                by += Jk * uy
+                bz += Jk * uz
+                add_row(bbuf, t, j, 0, Jk * sx, Jk * sy, Jk * sz)
+            wg = w * g
+            if want_f:
+                gx = wg * dx
+                gy = wg * dy
+                gz = wg * dz
+                fx -= gx
+                fy -= gy
+                fz -= gz
+                add_row(fbuf, t, j, 0, gx, gy, gz)
+            if want_energies:
+                ebuf[t, j, 0] -= 0.5 * Jk * w
+            if want_virial:
+                vxx -= wg * dx * dx
+                vyy -= wg * dy * dy
+                vzz -= wg * dz * dz
+                vyz -= wg * dy * dz
+                vxz -= wg * dx * dz
+                vxy -= wg * dx * dy
+        if want_b:
+            add_row(bbuf, t, i, 0, bx, by, bz)
+        if want_f:
+            add_row(fbuf, t, i, 0, fx, fy, fz)
+        if want_energies:
+            ebuf[t, i, 0] += 0.5 * ei
+        e += ei
+    store_sums(acc, t, e, vxx, vyy, vzz, vyz, vxz, vxy)

@@ -204,46 +204,55 @@ def _lj_kernel(nthreads, pos, row, nbr, image, images, types, table, forces, ene
     # one species (the common case): no gather of the neighbour's type
     single = table.shape[0] == 1
     for c in nb.prange(nthreads):
-        e = vxx = vyy = vzz = vyz = vxz = vxy = 0.0
-        for i in range(bounds[c], bounds[c + 1]):
-            ti = types[i]
-            fx = fy = fz = ei = 0.0
-            for k in range(row[i], row[i + 1]):
-                j = nbr[k]
-                tj = 0 if single else types[j]
-                dx, dy, dz, r2 = separation(pos, images, i, j, image[k])
-                rc2 = table[ti, tj, _RC2]
-                if r2 >= rc2:
-                    continue
-                u, du_r = _lj_pair(r2, table[ti, tj, _SIG2], table[ti, tj, _EPS4],
-                                   table[ti, tj, _MODE], table[ti, tj, _E0], rc2,
-                                   table[ti, tj, _RO2])
-                if want_energy or want_energies:
-                    ei += u
-                if want_forces:
-                    gx = du_r * dx
-                    gy = du_r * dy
-                    gz = du_r * dz
-                    fx += gx
-                    fy += gy
-                    fz += gz
-                    sub_row(fbuf, c, j, 0, gx, gy, gz)
-                if want_energies:
-                    ebuf[c, j, 0] += 0.5 * u
-                if want_virial:
-                    vxx += du_r * dx * dx
-                    vyy += du_r * dy * dy
-                    vzz += du_r * dz * dz
-                    vyz += du_r * dy * dz
-                    vxz += du_r * dx * dz
-                    vxy += du_r * dx * dy
-            if want_forces:
-                add_row(fbuf, c, i, 0, fx, fy, fz)
-            if want_energies:
-                ebuf[c, i, 0] += 0.5 * ei
-            e += ei
-        store_sums(acc, c, e, vxx, vyy, vzz, vyz, vxz, vxy)
+        _lj_kernel_chunk(np.int64(c), want_forces, want_energies, bounds, types, want_virial, row,
+                         nbr, single, pos, images, table, want_energy, fbuf, ebuf, image, acc)
     return reduce_scatter(reduce_threads, fbuf, forces, ebuf, energies, acc)
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _lj_kernel_chunk(c, want_forces, want_energies, bounds, types, want_virial, row, nbr, single,
+                     pos, images, table, want_energy, fbuf, ebuf, image, acc):
+    """One chunk ``c`` of :func:`_lj_kernel`'s threaded loop: its work,
+    compiled once for the threaded kernel and its serial twin."""
+    e = vxx = vyy = vzz = vyz = vxz = vxy = 0.0
+    for i in range(bounds[c], bounds[c + 1]):
+        ti = types[i]
+        fx = fy = fz = ei = 0.0
+        for k in range(row[i], row[i + 1]):
+            j = nbr[k]
+            tj = 0 if single else types[j]
+            dx, dy, dz, r2 = separation(pos, images, i, j, image[k])
+            rc2 = table[ti, tj, _RC2]
+            if r2 >= rc2:
+                continue
+            u, du_r = _lj_pair(r2, table[ti, tj, _SIG2], table[ti, tj, _EPS4],
+                               table[ti, tj, _MODE], table[ti, tj, _E0], rc2,
+                               table[ti, tj, _RO2])
+            if want_energy or want_energies:
+                ei += u
+            if want_forces:
+                gx = du_r * dx
+                gy = du_r * dy
+                gz = du_r * dz
+                fx += gx
+                fy += gy
+                fz += gz
+                sub_row(fbuf, c, j, 0, gx, gy, gz)
+            if want_energies:
+                ebuf[c, j, 0] += 0.5 * u
+            if want_virial:
+                vxx += du_r * dx * dx
+                vyy += du_r * dy * dy
+                vzz += du_r * dz * dz
+                vyz += du_r * dy * dz
+                vxz += du_r * dx * dz
+                vxy += du_r * dx * dy
+        if want_forces:
+            add_row(fbuf, c, i, 0, fx, fy, fz)
+        if want_energies:
+            ebuf[c, i, 0] += 0.5 * ei
+        e += ei
+    store_sums(acc, c, e, vxx, vyy, vzz, vyz, vxz, vxy)
 
 
 _lj_serial = _lj_kernel.serial

@@ -141,62 +141,70 @@ def bath_block(s, out, before, B, B0, w, k1, sigma, key, k2, magnetic):
     n = s.shape[0]
     a = 1.0 + w
     for blk in nb.prange((n + BLOCK - 1) // BLOCK):
-        lo = blk * BLOCK
-        m = min(n, lo + BLOCK) - lo
-        sf, bf, Bf = _rows(s, lo, m), _rows(before, lo, m), _rows(B, lo, m)
-        of, Zf = _rows(out, lo, m), _rows(B0, lo, m)
-        kk1, kk2, sig, mag = k1[lo:lo + m], k2[lo:lo + m], sigma[lo:lo + m], magnetic[lo:lo + m]
-        xi = np.zeros(2 * m)
-        noisy = False
-        for j in range(m):
-            noisy |= sig[j] != 0.0
-        if noisy:  # (σ = 0 rows do not use theirs)
-            normals(key, 2 * lo, xi)
-        # out starts as s and is updated in place: with s read and out written
-        # in the loop below, LLVM leaves it scalar (benchmarks/bench_langevin.py;
-        # docs/benchmarks.md, "Why each fast path exists")
-        for j in range(3 * m):
-            of[j] = sf[j]
-        rest = 0
-        for j in range(m):
-            bx = a * Bf[3 * j] - w * Zf[3 * j]
-            by = a * Bf[3 * j + 1] - w * Zf[3 * j + 1]
-            bz = a * Bf[3 * j + 2] - w * Zf[3 * j + 2]
-            b = np.sqrt(bx * bx + by * by + bz * bz)
-            inv = 1.0 / b
-            bx *= inv
-            by *= inv
-            bz *= inv
-            a1 = kk1[j] * b
-            a2 = kk2[j] * b
-            fast = mag[j] & (b > 0.0) & (a1 < _SMALL_ANGLE) & (a2 < _SMALL_ANGLE)
-            rest += mag[j] & (not fast)
-            sx, sy, sz = of[3 * j], of[3 * j + 1], of[3 * j + 2]
-            x, y, z = _damped_series(sx, sy, sz, bx, by, bz, a1)
-            x, y, z = _diffused(x, y, z, sig[j], xi[2 * j], xi[2 * j + 1])
-            bf[3 * j] = x if fast else bf[3 * j]
-            bf[3 * j + 1] = y if fast else bf[3 * j + 1]
-            bf[3 * j + 2] = z if fast else bf[3 * j + 2]
-            x, y, z = _damped_series(x, y, z, bx, by, bz, a2)
-            of[3 * j] = x if fast else sx
-            of[3 * j + 1] = y if fast else sy
-            of[3 * j + 2] = z if fast else sz
-        for j in range(m if rest else 0):
-            i = lo + j
-            if not magnetic[i]:
-                continue
-            bx, by, bz, b = _field_direction(B, B0, w, i)
-            if b > 0.0 and k1[i] * b < _SMALL_ANGLE and k2[i] * b < _SMALL_ANGLE:
-                continue  # done above
-            x, y, z = _damped(s[i, 0], s[i, 1], s[i, 2], bx, by, bz, k1[i] * b)
-            x, y, z = _diffused(x, y, z, sigma[i], xi[2 * j], xi[2 * j + 1])
-            before[i, 0] = x
-            before[i, 1] = y
-            before[i, 2] = z
-            x, y, z = _damped(x, y, z, bx, by, bz, k2[i] * b)
-            out[i, 0] = x
-            out[i, 1] = y
-            out[i, 2] = z
+        _bath_block_chunk(np.int64(blk), n, s, before, B, out, B0, k1, k2, sigma, magnetic, key,
+                          a, w)
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _bath_block_chunk(blk, n, s, before, B, out, B0, k1, k2, sigma, magnetic, key, a, w):
+    """One chunk ``blk`` of :func:`bath_block`'s threaded loop: its work,
+    compiled once for the threaded kernel and its serial twin."""
+    lo = blk * BLOCK
+    m = min(n, lo + BLOCK) - lo
+    sf, bf, Bf = _rows(s, lo, m), _rows(before, lo, m), _rows(B, lo, m)
+    of, Zf = _rows(out, lo, m), _rows(B0, lo, m)
+    kk1, kk2, sig, mag = k1[lo:lo + m], k2[lo:lo + m], sigma[lo:lo + m], magnetic[lo:lo + m]
+    xi = np.zeros(2 * m)
+    noisy = False
+    for j in range(m):
+        noisy |= sig[j] != 0.0
+    if noisy:  # (σ = 0 rows do not use theirs)
+        normals(key, 2 * lo, xi)
+    # out starts as s and is updated in place: with s read and out written
+    # in the loop below, LLVM leaves it scalar (benchmarks/bench_langevin.py;
+    # docs/benchmarks.md, "Why each fast path exists")
+    for j in range(3 * m):
+        of[j] = sf[j]
+    rest = 0
+    for j in range(m):
+        bx = a * Bf[3 * j] - w * Zf[3 * j]
+        by = a * Bf[3 * j + 1] - w * Zf[3 * j + 1]
+        bz = a * Bf[3 * j + 2] - w * Zf[3 * j + 2]
+        b = np.sqrt(bx * bx + by * by + bz * bz)
+        inv = 1.0 / b
+        bx *= inv
+        by *= inv
+        bz *= inv
+        a1 = kk1[j] * b
+        a2 = kk2[j] * b
+        fast = mag[j] & (b > 0.0) & (a1 < _SMALL_ANGLE) & (a2 < _SMALL_ANGLE)
+        rest += mag[j] & (not fast)
+        sx, sy, sz = of[3 * j], of[3 * j + 1], of[3 * j + 2]
+        x, y, z = _damped_series(sx, sy, sz, bx, by, bz, a1)
+        x, y, z = _diffused(x, y, z, sig[j], xi[2 * j], xi[2 * j + 1])
+        bf[3 * j] = x if fast else bf[3 * j]
+        bf[3 * j + 1] = y if fast else bf[3 * j + 1]
+        bf[3 * j + 2] = z if fast else bf[3 * j + 2]
+        x, y, z = _damped_series(x, y, z, bx, by, bz, a2)
+        of[3 * j] = x if fast else sx
+        of[3 * j + 1] = y if fast else sy
+        of[3 * j + 2] = z if fast else sz
+    for j in range(m if rest else 0):
+        i = lo + j
+        if not magnetic[i]:
+            continue
+        bx, by, bz, b = _field_direction(B, B0, w, i)
+        if b > 0.0 and k1[i] * b < _SMALL_ANGLE and k2[i] * b < _SMALL_ANGLE:
+            continue  # done above
+        x, y, z = _damped(s[i, 0], s[i, 1], s[i, 2], bx, by, bz, k1[i] * b)
+        x, y, z = _diffused(x, y, z, sigma[i], xi[2 * j], xi[2 * j + 1])
+        before[i, 0] = x
+        before[i, 1] = y
+        before[i, 2] = z
+        x, y, z = _damped(x, y, z, bx, by, bz, k2[i] * b)
+        out[i, 0] = x
+        out[i, 1] = y
+        out[i, 2] = z
 
 
 @threaded()
@@ -211,46 +219,53 @@ def damp_from(start, B, k, magnetic, out, y0, c, kick, keep):
     term B = C s); and B copied to ``keep``."""
     n = start.shape[0]
     for blk in nb.prange((n + BLOCK - 1) // BLOCK):
-        lo = blk * BLOCK
-        m = min(n, lo + BLOCK) - lo
-        sf, of, Bf = _rows(start, lo, m), _rows(out, lo, m), _rows(B, lo, m)
-        kk, mag = k[lo:lo + m], magnetic[lo:lo + m]
-        rest = 0
+        _damp_from_chunk(np.int64(blk), n, start, out, B, k, magnetic, kick, y0, c, keep)
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _damp_from_chunk(blk, n, start, out, B, k, magnetic, kick, y0, c, keep):
+    """One chunk ``blk`` of :func:`damp_from`'s threaded loop: its work,
+    compiled once for the threaded kernel and its serial twin."""
+    lo = blk * BLOCK
+    m = min(n, lo + BLOCK) - lo
+    sf, of, Bf = _rows(start, lo, m), _rows(out, lo, m), _rows(B, lo, m)
+    kk, mag = k[lo:lo + m], magnetic[lo:lo + m]
+    rest = 0
+    for j in range(m):
+        bx, by, bz = Bf[3 * j], Bf[3 * j + 1], Bf[3 * j + 2]
+        b = np.sqrt(bx * bx + by * by + bz * bz)
+        inv = 1.0 / b
+        a = kk[j] * b
+        fast = mag[j] & (b > 0.0) & (a < _SMALL_ANGLE)
+        rest += mag[j] & (not fast)
+        x, y, z = _damped_series(sf[3 * j], sf[3 * j + 1], sf[3 * j + 2], bx * inv,
+                                 by * inv, bz * inv, a)
+        of[3 * j] = x if fast else of[3 * j]
+        of[3 * j + 1] = y if fast else of[3 * j + 1]
+        of[3 * j + 2] = z if fast else of[3 * j + 2]
+    for j in range(m if rest else 0):
+        i = lo + j
+        if not magnetic[i]:
+            continue
+        bx, by, bz, b = _direction(B, i)
+        if b > 0.0 and k[i] * b < _SMALL_ANGLE:
+            continue  # done above
+        x, y, z = _damped(start[i, 0], start[i, 1], start[i, 2], bx, by, bz, k[i] * b)
+        out[i, 0] = x
+        out[i, 1] = y
+        out[i, 2] = z
+    if kick.shape[0] > 0:
+        af, cc = _rows(y0, lo, m), c[lo:lo + m]
+        kf, ef = _rows(kick, lo, m), _rows(keep, lo, m)
         for j in range(m):
+            x, y, z = of[3 * j], of[3 * j + 1], of[3 * j + 2]
             bx, by, bz = Bf[3 * j], Bf[3 * j + 1], Bf[3 * j + 2]
-            b = np.sqrt(bx * bx + by * by + bz * bz)
-            inv = 1.0 / b
-            a = kk[j] * b
-            fast = mag[j] & (b > 0.0) & (a < _SMALL_ANGLE)
-            rest += mag[j] & (not fast)
-            x, y, z = _damped_series(sf[3 * j], sf[3 * j + 1], sf[3 * j + 2], bx * inv,
-                                     by * inv, bz * inv, a)
-            of[3 * j] = x if fast else of[3 * j]
-            of[3 * j + 1] = y if fast else of[3 * j + 1]
-            of[3 * j + 2] = z if fast else of[3 * j + 2]
-        for j in range(m if rest else 0):
-            i = lo + j
-            if not magnetic[i]:
-                continue
-            bx, by, bz, b = _direction(B, i)
-            if b > 0.0 and k[i] * b < _SMALL_ANGLE:
-                continue  # done above
-            x, y, z = _damped(start[i, 0], start[i, 1], start[i, 2], bx, by, bz, k[i] * b)
-            out[i, 0] = x
-            out[i, 1] = y
-            out[i, 2] = z
-        if kick.shape[0] > 0:
-            af, cc = _rows(y0, lo, m), c[lo:lo + m]
-            kf, ef = _rows(kick, lo, m), _rows(keep, lo, m)
-            for j in range(m):
-                x, y, z = of[3 * j], of[3 * j + 1], of[3 * j + 2]
-                bx, by, bz = Bf[3 * j], Bf[3 * j + 1], Bf[3 * j + 2]
-                kf[3 * j] = (x - af[3 * j]) + cc[j] * (y * bz - z * by)
-                kf[3 * j + 1] = (y - af[3 * j + 1]) + cc[j] * (z * bx - x * bz)
-                kf[3 * j + 2] = (z - af[3 * j + 2]) + cc[j] * (x * by - y * bx)
-                ef[3 * j] = bx
-                ef[3 * j + 1] = by
-                ef[3 * j + 2] = bz
+            kf[3 * j] = (x - af[3 * j]) + cc[j] * (y * bz - z * by)
+            kf[3 * j + 1] = (y - af[3 * j + 1]) + cc[j] * (z * bx - x * bz)
+            kf[3 * j + 2] = (z - af[3 * j + 2]) + cc[j] * (x * by - y * bx)
+            ef[3 * j] = bx
+            ef[3 * j + 1] = by
+            ef[3 * j + 2] = bz
 
 
 def noise_amplitude(d_tau):
@@ -280,16 +295,7 @@ def ornstein_uhlenbeck(p, key, m, c1, c2, fix_com, out):
     nblocks = (n + BLOCK - 1) // BLOCK
     part = np.zeros((nblocks, 4))
     for blk in nb.prange(nblocks):
-        lo = blk * BLOCK
-        xi = np.empty(3 * (min(n, lo + BLOCK) - lo))
-        normals(key, 3 * lo, xi)
-        for i in range(lo, min(n, lo + BLOCK)):
-            r = c2 * np.sqrt(m[i])
-            part[blk, 3] += m[i]
-            for a in range(3):
-                v = c1 * p[i, a] + r * xi[3 * (i - lo) + a]
-                out[i, a] = v
-                part[blk, a] += v - p[i, a]
+        _ornstein_uhlenbeck_chunk0(np.int64(blk), n, key, c2, part, m, out, c1, p)
     dP = np.zeros(3)
     M = 0.0
     for blk in range(nblocks):
@@ -302,22 +308,45 @@ def ornstein_uhlenbeck(p, key, m, c1, c2, fix_com, out):
     dvz = dP[2] / M if fix_com else 0.0
     kinetic = np.zeros(nblocks)
     for blk in nb.prange(nblocks):
-        dK = 0.0
-        for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
-            mi = m[i]
-            x = out[i, 0] - mi * dvx
-            y = out[i, 1] - mi * dvy
-            z = out[i, 2] - mi * dvz
-            out[i, 0] = x
-            out[i, 1] = y
-            out[i, 2] = z
-            dK += 0.5 * ((x * x + y * y + z * z)
-                         - (p[i, 0] * p[i, 0] + p[i, 1] * p[i, 1] + p[i, 2] * p[i, 2])) / mi
-        kinetic[blk] = dK
+        _ornstein_uhlenbeck_chunk1(np.int64(blk), n, m, out, dvx, dvy, dvz, p, kinetic)
     dK = 0.0
     for blk in range(nblocks):
         dK += kinetic[blk]
     return dK
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _ornstein_uhlenbeck_chunk0(blk, n, key, c2, part, m, out, c1, p):
+    """One chunk ``blk`` of :func:`ornstein_uhlenbeck`'s threaded loop: its work,
+    compiled once for the threaded kernel and its serial twin."""
+    lo = blk * BLOCK
+    xi = np.empty(3 * (min(n, lo + BLOCK) - lo))
+    normals(key, 3 * lo, xi)
+    for i in range(lo, min(n, lo + BLOCK)):
+        r = c2 * np.sqrt(m[i])
+        part[blk, 3] += m[i]
+        for a in range(3):
+            v = c1 * p[i, a] + r * xi[3 * (i - lo) + a]
+            out[i, a] = v
+            part[blk, a] += v - p[i, a]
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _ornstein_uhlenbeck_chunk1(blk, n, m, out, dvx, dvy, dvz, p, kinetic):
+    """One chunk ``blk`` of :func:`ornstein_uhlenbeck`'s threaded loop: its work,
+    compiled once for the threaded kernel and its serial twin."""
+    dK = 0.0
+    for i in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
+        mi = m[i]
+        x = out[i, 0] - mi * dvx
+        y = out[i, 1] - mi * dvy
+        z = out[i, 2] - mi * dvz
+        out[i, 0] = x
+        out[i, 1] = y
+        out[i, 2] = z
+        dK += 0.5 * ((x * x + y * y + z * z)
+                     - (p[i, 0] * p[i, 0] + p[i, 1] * p[i, 1] + p[i, 2] * p[i, 2])) / mi
+    kinetic[blk] = dK
 
 
 @nb.njit(cache=True, inline="always")
@@ -348,32 +377,40 @@ def predict_midpoint(s, B, c, R0, R1, R2, R3, coef, out, known):
     n = s.shape[0]
     c0, c1, c2, c3 = coef[0], coef[1], coef[2], coef[3]
     for blk in nb.prange((n + BLOCK - 1) // BLOCK):
-        lo = blk * BLOCK
-        m = min(n, lo + BLOCK) - lo
-        sf, Bf, cc = _rows(s, lo, m), _rows(B, lo, m), c[lo:lo + m]
-        r0, r1, r2, r3 = _rows(R0, lo, m), _rows(R1, lo, m), _rows(R2, lo, m), _rows(R3, lo, m)
-        of, kf = _rows(out, lo, m), _rows(known, lo, m)
-        for j in range(m):
-            sx, sy, sz = sf[3 * j], sf[3 * j + 1], sf[3 * j + 2]
-            spin = (sx != 0.0) | (sy != 0.0) | (sz != 0.0)
-            vx, vy, vz = _frozen_field_midpoint(sx, sy, sz, Bf[3 * j], Bf[3 * j + 1],
-                                                Bf[3 * j + 2], cc[j])
-            kf[3 * j] = vx if spin else 0.0
-            kf[3 * j + 1] = vy if spin else 0.0
-            kf[3 * j + 2] = vz if spin else 0.0
-        # a second loop: with every array in one, LLVM leaves it scalar
-        for j in range(m):
-            vx, vy, vz = kf[3 * j], kf[3 * j + 1], kf[3 * j + 2]
-            spin = (vx != 0.0) | (vy != 0.0) | (vz != 0.0)
-            x, y, z = _unit(
-                vx + (c0 * r0[3 * j] + c1 * r1[3 * j] + c2 * r2[3 * j] + c3 * r3[3 * j]),
-                vy + (c0 * r0[3 * j + 1] + c1 * r1[3 * j + 1] + c2 * r2[3 * j + 1]
-                      + c3 * r3[3 * j + 1]),
-                vz + (c0 * r0[3 * j + 2] + c1 * r1[3 * j + 2] + c2 * r2[3 * j + 2]
-                      + c3 * r3[3 * j + 2]))
-            of[3 * j] = x if spin else 0.0
-            of[3 * j + 1] = y if spin else 0.0
-            of[3 * j + 2] = z if spin else 0.0
+        _predict_midpoint_chunk(np.int64(blk), n, s, B, c, R0, R1, R2, R3, out, known, c3, c2, c0,
+                                c1)
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _predict_midpoint_chunk(blk, n, s, B, c, R0, R1, R2, R3, out, known, c3, c2, c0, c1):
+    """One chunk ``blk`` of :func:`predict_midpoint`'s threaded loop: its work,
+    compiled once for the threaded kernel and its serial twin."""
+    lo = blk * BLOCK
+    m = min(n, lo + BLOCK) - lo
+    sf, Bf, cc = _rows(s, lo, m), _rows(B, lo, m), c[lo:lo + m]
+    r0, r1, r2, r3 = _rows(R0, lo, m), _rows(R1, lo, m), _rows(R2, lo, m), _rows(R3, lo, m)
+    of, kf = _rows(out, lo, m), _rows(known, lo, m)
+    for j in range(m):
+        sx, sy, sz = sf[3 * j], sf[3 * j + 1], sf[3 * j + 2]
+        spin = (sx != 0.0) | (sy != 0.0) | (sz != 0.0)
+        vx, vy, vz = _frozen_field_midpoint(sx, sy, sz, Bf[3 * j], Bf[3 * j + 1],
+                                            Bf[3 * j + 2], cc[j])
+        kf[3 * j] = vx if spin else 0.0
+        kf[3 * j + 1] = vy if spin else 0.0
+        kf[3 * j + 2] = vz if spin else 0.0
+    # a second loop: with every array in one, LLVM leaves it scalar
+    for j in range(m):
+        vx, vy, vz = kf[3 * j], kf[3 * j + 1], kf[3 * j + 2]
+        spin = (vx != 0.0) | (vy != 0.0) | (vz != 0.0)
+        x, y, z = _unit(
+            vx + (c0 * r0[3 * j] + c1 * r1[3 * j] + c2 * r2[3 * j] + c3 * r3[3 * j]),
+            vy + (c0 * r0[3 * j + 1] + c1 * r1[3 * j + 1] + c2 * r2[3 * j + 1]
+                  + c3 * r3[3 * j + 1]),
+            vz + (c0 * r0[3 * j + 2] + c1 * r1[3 * j + 2] + c2 * r2[3 * j + 2]
+                  + c3 * r3[3 * j + 2]))
+        of[3 * j] = x if spin else 0.0
+        of[3 * j + 1] = y if spin else 0.0
+        of[3 * j + 2] = z if spin else 0.0
 
 
 @threaded()

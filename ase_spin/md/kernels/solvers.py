@@ -155,25 +155,7 @@ def _midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, f
     for it in range(1, max_iter + 1):
         if _HALF:
             for t in nb.prange(nthreads):
-                for i in range(bounds[t], bounds[t + 1]):
-                    wx = cur[i, 0]
-                    wy = cur[i, 1]
-                    wz = cur[i, 2]
-                    bx = 0.0
-                    by = 0.0
-                    bz = 0.0
-                    for k in range(row[i], row[i + 1]):
-                        j = nbr[k]
-                        Jk = Jbar[k]
-                        bx += Jk * cur[j, 0]
-                        by += Jk * cur[j, 1]
-                        bz += Jk * cur[j, 2]
-                        buf[t, j, 0] += Jk * wx
-                        buf[t, j, 1] += Jk * wy
-                        buf[t, j, 2] += Jk * wz
-                    buf[t, i, 0] += bx
-                    buf[t, i, 1] += by
-                    buf[t, i, 2] += bz
+                _midpoint_solve_chunk0(np.int64(t), bounds, cur, buf, row, nbr, Jbar)
         elif threaded_colours:
             for t in nb.prange(nthreads):
                 for i in range((n * t) // nthreads, (n * (t + 1)) // nthreads):
@@ -197,40 +179,9 @@ def _midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, f
                                         carry_out, jacobi_rows, field, by_colour)
         if _HALF or not coloured:  # index order: each spin from its whole field
             for t in nb.prange(nthreads):
-                m = 0.0
-                for i in range(atoms[t], atoms[t + 1]):
-                    if _HALF:
-                        bx = 0.0
-                        by = 0.0
-                        bz = 0.0
-                        for u in range(nthreads):
-                            bx += buf[u, i, 0]
-                            by += buf[u, i, 1]
-                            bz += buf[u, i, 2]
-                            buf[u, i, 0] = 0.0
-                            buf[u, i, 1] = 0.0
-                            buf[u, i, 2] = 0.0
-                    if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
-                        continue
-                    if not _HALF:
-                        bx, by, bz = pair_field_row(i, row, nbr, Jbar, cur)
-                    if held:
-                        bx += external[i, 0]
-                        by += external[i, 1]
-                        bz += external[i, 2]
-                    if field is not None and field.shape[0] > 0:
-                        field[i, 0] = bx
-                        field[i, 1] = by
-                        field[i, 2] = bz
-                    if local:
-                        d = local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale,
-                                                      stilde, carry, carry_out, jacobi_rows)
-                    else:
-                        d = update_row(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
-                                             carry_out)
-                    if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
-                        m = d
-                change[t] = m
+                _midpoint_solve_chunk1(np.int64(t), _HALF, held, local, atoms, nthreads, row, nbr,
+                                       Jbar, cur, external, field, s, nxt, scale, stilde, carry,
+                                       carry_out, jacobi_rows, buf, change)
         delta = change.max()
         status, theta, measured, first = after_sweep(it, delta, previous, theta, measured,
                                                       first, tol, floor)
@@ -251,6 +202,75 @@ def _midpoint_solve(nthreads, row, nbr, Jbar, s, W, Wnext, stilde, scale, tol, f
     return it, delta, status, which, measured, first
 
 
+@nb.njit(cache=True, error_model="numpy")
+def _midpoint_solve_chunk0(t, bounds, cur, buf, row, nbr, Jbar):
+    """One chunk ``t`` of :func:`_midpoint_solve`'s threaded loop: its work,
+    compiled once for the threaded kernel and its serial twin."""
+    for i in range(bounds[t], bounds[t + 1]):
+        wx = cur[i, 0]
+        wy = cur[i, 1]
+        wz = cur[i, 2]
+        bx = 0.0
+        by = 0.0
+        bz = 0.0
+        for k in range(row[i], row[i + 1]):
+            j = nbr[k]
+            Jk = Jbar[k]
+            bx += Jk * cur[j, 0]
+            by += Jk * cur[j, 1]
+            bz += Jk * cur[j, 2]
+            buf[t, j, 0] += Jk * wx
+            buf[t, j, 1] += Jk * wy
+            buf[t, j, 2] += Jk * wz
+        buf[t, i, 0] += bx
+        buf[t, i, 1] += by
+        buf[t, i, 2] += bz
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _midpoint_solve_chunk1(t, half, held, local, atoms, nthreads, row, nbr, Jbar, cur, external,
+                           field, s, nxt, scale, stilde, carry, carry_out, jacobi_rows, buf,
+                           change):
+    """One chunk ``t`` of :func:`_midpoint_solve`'s update pass in index order:
+    its work, compiled once for the threaded kernel, its serial twin and the
+    half-list twin (``half``: the twin's ``_HALF``, the fields summed from the
+    per-thread buffers rather than from the rows)."""
+    m = 0.0
+    for i in range(atoms[t], atoms[t + 1]):
+        if half:
+            bx = 0.0
+            by = 0.0
+            bz = 0.0
+            for u in range(nthreads):
+                bx += buf[u, i, 0]
+                by += buf[u, i, 1]
+                bz += buf[u, i, 2]
+                buf[u, i, 0] = 0.0
+                buf[u, i, 1] = 0.0
+                buf[u, i, 2] = 0.0
+        if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+            continue
+        if not half:
+            bx, by, bz = pair_field_row(i, row, nbr, Jbar, cur)
+        if held:
+            bx += external[i, 0]
+            by += external[i, 1]
+            bz += external[i, 2]
+        if field is not None and field.shape[0] > 0:
+            field[i, 0] = bx
+            field[i, 1] = by
+            field[i, 2] = bz
+        if local:
+            d = local_midpoint_direction(i, s, cur, nxt, bx, by, bz, scale,
+                                          stilde, carry, carry_out, jacobi_rows)
+        else:
+            d = update_row(i, s, cur, nxt, bx, by, bz, scale, stilde, carry,
+                                 carry_out)
+        if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
+            m = d
+    change[t] = m
+
+
 midpoint_solve = threaded(anderson_mix=lambda: anderson_mix_serial)(_midpoint_solve)
 midpoint_solve_half = threaded(anderson_mix=lambda: anderson_mix_serial)(
     kernel_twin(_midpoint_solve, "_half", _HALF=True))
@@ -269,20 +289,29 @@ def midpoint_update(nthreads, s, W, Wnext, B, scale, stilde, carry, carry_out, l
     n = s.shape[0]
     change = np.zeros(nthreads)
     for t in nb.prange(nthreads):
-        m = 0.0
-        for i in range((n * t) // nthreads, (n * (t + 1)) // nthreads):
-            if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
-                continue
-            if local:
-                d = local_midpoint_direction(i, s, W, Wnext, B[i, 0], B[i, 1], B[i, 2], scale,
-                                              stilde, carry, carry_out, jacobi_rows)
-            else:
-                d = update_row(i, s, W, Wnext, B[i, 0], B[i, 1], B[i, 2], scale, stilde,
-                                     carry, carry_out)
-            if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
-                m = d
-        change[t] = m
+        _midpoint_update_chunk(np.int64(t), local, nthreads, n, s, W, Wnext, scale, stilde, carry,
+                               carry_out, jacobi_rows, B, change)
     return change.max()
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _midpoint_update_chunk(t, local, nthreads, n, s, W, Wnext, scale, stilde, carry, carry_out,
+                           jacobi_rows, B, change):
+    """One chunk ``t`` of :func:`midpoint_update`'s threaded loop: its work,
+    compiled once for the threaded kernel and its serial twin."""
+    m = 0.0
+    for i in range((n * t) // nthreads, (n * (t + 1)) // nthreads):
+        if s[i, 0] == 0.0 and s[i, 1] == 0.0 and s[i, 2] == 0.0:
+            continue
+        if local:
+            d = local_midpoint_direction(i, s, W, Wnext, B[i, 0], B[i, 1], B[i, 2], scale,
+                                          stilde, carry, carry_out, jacobi_rows)
+        else:
+            d = update_row(i, s, W, Wnext, B[i, 0], B[i, 1], B[i, 2], scale, stilde,
+                                 carry, carry_out)
+        if not d <= m and m == m:  # a NaN stays (max(m, d) drops it)
+            m = d
+    change[t] = m
 
 
 @threaded()
@@ -309,51 +338,8 @@ def linear_field_and_form(nthreads, row, nbr, c, half, u, y, x, out):
     form = np.zeros((nthreads, 2))
     twice = 2.0 if half else 1.0
     for t in nb.prange(nthreads):
-        acc = 0.0
-        cross = 0.0
-        for i in range(bounds[t], bounds[t + 1]):
-            ux = u[i, 0]
-            uy = u[i, 1]
-            uz = u[i, 2]
-            # row sums Σ_j c_k (u_j, d_j, x_j): the forms from them, per row
-            fx = fy = fz = 0.0
-            ax = ay = az = 0.0
-            bx = by = bz = 0.0
-            for k in range(row[i], row[i + 1]):
-                j = nbr[k]
-                ck = c[k]
-                fx += ck * u[j, 0]
-                fy += ck * u[j, 1]
-                fz += ck * u[j, 2]
-                xj0 = x[j, 0]
-                xj1 = x[j, 1]
-                xj2 = x[j, 2]
-                ax += ck * (y[j, 0] - xj0)
-                ay += ck * (y[j, 1] - xj1)
-                az += ck * (y[j, 2] - xj2)
-                if half:
-                    bx += ck * xj0
-                    by += ck * xj1
-                    bz += ck * xj2
-                    buf[t, j, 0] += ck * ux
-                    buf[t, j, 1] += ck * uy
-                    buf[t, j, 2] += ck * uz
-            dx = y[i, 0] - x[i, 0]
-            dy = y[i, 1] - x[i, 1]
-            dz = y[i, 2] - x[i, 2]
-            acc += twice * (dx * ax + dy * ay + dz * az)
-            cross += x[i, 0] * ax + x[i, 1] * ay + x[i, 2] * az
-            if half:
-                cross += dx * bx + dy * by + dz * bz
-                buf[t, i, 0] += fx
-                buf[t, i, 1] += fy
-                buf[t, i, 2] += fz
-            else:
-                out[i, 0] += fx
-                out[i, 1] += fy
-                out[i, 2] += fz
-        form[t, 0] = acc
-        form[t, 1] = cross
+        _linear_field_and_form_chunk(np.int64(t), half, bounds, u, twice, row, nbr, c, x, y, buf,
+                                     out, form)
     if half:
         reduce_threads(buf, out)
     total = 0.0
@@ -362,6 +348,57 @@ def linear_field_and_form(nthreads, row, nbr, c, half, u, y, x, out):
         total += form[t, 0]
         mixed += form[t, 1]
     return total, mixed
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _linear_field_and_form_chunk(t, half, bounds, u, twice, row, nbr, c, x, y, buf, out, form):
+    """One chunk ``t`` of :func:`linear_field_and_form`'s threaded loop: its work,
+    compiled once for the threaded kernel and its serial twin."""
+    acc = 0.0
+    cross = 0.0
+    for i in range(bounds[t], bounds[t + 1]):
+        ux = u[i, 0]
+        uy = u[i, 1]
+        uz = u[i, 2]
+        # row sums Σ_j c_k (u_j, d_j, x_j): the forms from them, per row
+        fx = fy = fz = 0.0
+        ax = ay = az = 0.0
+        bx = by = bz = 0.0
+        for k in range(row[i], row[i + 1]):
+            j = nbr[k]
+            ck = c[k]
+            fx += ck * u[j, 0]
+            fy += ck * u[j, 1]
+            fz += ck * u[j, 2]
+            xj0 = x[j, 0]
+            xj1 = x[j, 1]
+            xj2 = x[j, 2]
+            ax += ck * (y[j, 0] - xj0)
+            ay += ck * (y[j, 1] - xj1)
+            az += ck * (y[j, 2] - xj2)
+            if half:
+                bx += ck * xj0
+                by += ck * xj1
+                bz += ck * xj2
+                buf[t, j, 0] += ck * ux
+                buf[t, j, 1] += ck * uy
+                buf[t, j, 2] += ck * uz
+        dx = y[i, 0] - x[i, 0]
+        dy = y[i, 1] - x[i, 1]
+        dz = y[i, 2] - x[i, 2]
+        acc += twice * (dx * ax + dy * ay + dz * az)
+        cross += x[i, 0] * ax + x[i, 1] * ay + x[i, 2] * az
+        if half:
+            cross += dx * bx + dy * by + dz * bz
+            buf[t, i, 0] += fx
+            buf[t, i, 1] += fy
+            buf[t, i, 2] += fz
+        else:
+            out[i, 0] += fx
+            out[i, 1] += fy
+            out[i, 2] += fz
+    form[t, 0] = acc
+    form[t, 1] = cross
 
 
 def midpoint_solve_operators(operators, s, W, Wnext, stilde, scale, tol, floor, max_iter,
