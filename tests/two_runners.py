@@ -74,6 +74,24 @@ def pytest_configure(config):
     if os.environ.get(SHARED):
         _state["role"] = "child"
         _state["folder"] = Path(os.environ[SHARED])
+        _end_with_the_parent()
+
+
+def _end_with_the_parent(every=1.0):
+    """In the child: end the process when the main one has gone (killed, so
+    that it could not stop the child itself), rather than run on alone,
+    holding a core, after the run it belonged to."""
+    import threading
+    import time
+
+    parent = os.getppid()
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(every)
+        os._exit(3)
+
+    threading.Thread(target=watch, daemon=True, name="end-with-the-parent").start()
 
 
 def pytest_collection_modifyitems(session, config, items):
