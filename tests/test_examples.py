@@ -1,8 +1,12 @@
 """The example scripts' command lines: --help, where they write (the current folder
 or the --out they are given, never docs/figures unless asked), and files they report
-as written exist. Each runs as a separate process in an empty folder."""
+as written exist. Each runs in an empty folder: as a separate process, or, where it
+only parses its command line (--help, a refused --out), all of those one after
+another in one process, as ``python script.py ...`` would run them (runpy,
+``__name__ == "__main__"``)."""
 
 import importlib.util
+import json
 import math
 import os
 import re
@@ -24,6 +28,41 @@ def run(script, *args, cwd):
                           check=False)
 
 
+#: Runs scripts one after another in one Python process: for each (script,
+#: arguments, folder) its exit code, standard output and standard error, as JSON.
+_IN_TURN = r"""
+import contextlib, io, json, os, runpy, sys, traceback
+results = []
+for script, args, cwd in json.loads(sys.argv[1]):
+    out, err = io.StringIO(), io.StringIO()
+    os.chdir(cwd)
+    sys.argv = [script, *args]
+    sys.path[0] = os.path.dirname(script)
+    code = 0
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            runpy.run_path(script, run_name="__main__")
+        except SystemExit as stop:
+            code = stop.code if isinstance(stop.code, int) else int(stop.code is not None)
+        except BaseException:
+            traceback.print_exc()
+            code = 1
+    results.append((code, out.getvalue(), err.getvalue()))
+sys.stdout.write(json.dumps(results))
+"""
+
+
+def run_in_turn(calls):
+    """subprocess.CompletedProcess-like (returncode, stdout, stderr) of each
+    (script, arguments, folder) of ``calls``, run in turn in one process."""
+    env = {**os.environ, "PYTHONPATH": PACKAGE_PATH, "MPLBACKEND": "Agg"}
+    spec = [(str(ROOT / "examples" / script), list(args), str(cwd)) for script, args, cwd in calls]
+    done = subprocess.run([sys.executable, "-c", _IN_TURN, json.dumps(spec)], capture_output=True,
+                          text=True, env=env, timeout=900, check=True)
+    return [subprocess.CompletedProcess(call, *result)
+            for call, result in zip(calls, json.loads(done.stdout))]
+
+
 def files_in(folder):
     return sorted(str(p.relative_to(folder)) for p in Path(folder).rglob("*"))
 
@@ -39,21 +78,37 @@ def test_every_example_is_found():
                                           "paper_chain.py", "skyrmion.py", "view_spins.py"}
 
 
+REFUSE_PNG = ["view_spins.py", "paper_chain.py"]
+
+
+@pytest.fixture(scope="module")
+def command_lines(tmp_path_factory):
+    """Every example with --help, and those writing several files with a
+    .png --out, each in an empty folder of its own: (the run, its folder) by
+    (script, first argument)."""
+    calls = [(p.name, ["--help"]) for p in EXAMPLES]
+    calls += [(script, ["--out", "x.png"]) for script in REFUSE_PNG]
+    folders = [tmp_path_factory.mktemp(script.replace(".", "_")) for script, _ in calls]
+    runs = run_in_turn([(script, args, folder) for (script, args), folder in zip(calls, folders)])
+    return {(script, args[0]): (done, folder)
+            for (script, args), done, folder in zip(calls, runs, folders)}
+
+
 @pytest.mark.parametrize("script", [p.name for p in EXAMPLES])
-def test_help_prints_usage_and_writes_nothing(tmp_path, script):
+def test_help_prints_usage_and_writes_nothing(command_lines, script):
     """`--help` is argparse's: usage on stdout, exit 0, and no file or folder
     (a folder named --help, say) left behind."""
-    done = run(script, "--help", cwd=tmp_path)
+    done, folder = command_lines[script, "--help"]
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith("usage:") and "--out" in done.stdout
-    assert files_in(tmp_path) == []
+    assert files_in(folder) == []
 
 
-@pytest.mark.parametrize("script", ["view_spins.py", "paper_chain.py"])
-def test_examples_writing_several_files_refuse_a_png_out(tmp_path, script):
-    done = run(script, "--out", "x.png", cwd=tmp_path)
+@pytest.mark.parametrize("script", REFUSE_PNG)
+def test_examples_writing_several_files_refuse_a_png_out(command_lines, script):
+    done, folder = command_lines[script, "--out"]
     assert done.returncode == 2 and "--out is a folder" in done.stderr
-    assert files_in(tmp_path) == []
+    assert files_in(folder) == []
 
 
 def test_skyrmion_writes_the_png_it_is_given_or_into_a_folder(tmp_path):

@@ -370,10 +370,11 @@ def test_fused_step_above_tiny_threads_its_heavy_pieces_same_bits_any_threads(mo
         dyn.run(12)
         runs.append((atoms.positions.copy(), atoms.get_momenta(), get_spins(atoms)))
         with threads.threads_for(len(atoms)):
-            lattice, _ = fused._lattice_pieces(dyn.ev)
+            lattice, data = fused._lattice_pieces(dyn.ev)
             spin = dyn._state.ops[0].compiled()
-        assert lattice is lennard_jones._lj_forces_threaded
-        assert spin[1] is exchange_fused.exchange_geometry_threaded
+        # the pieces' last datum: tiny (their serial twins) or not (threaded)
+        assert lattice is lennard_jones._lj_forces and data[-1] is False
+        assert spin[1] is exchange_fused.exchange_geometry and spin[3][-1] is False
     assert used["done"] > 5 * used["general"]  # the general path: each run's first step
     for a, b in zip(*runs):
         assert np.array_equal(a, b)

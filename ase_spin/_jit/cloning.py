@@ -71,7 +71,7 @@ def kernel_twin(fn, suffix, **constants):
     return clone(fn, fn.__name__ + suffix, constants)
 
 
-def compile_with(skeleton, functions, name, parallel=False):
+def compile_with(skeleton, functions, name, parallel=False, error_model="python"):
     """``skeleton`` compiled with the compiled ``functions`` (a mapping from
     the global names it calls to dispatchers) bound in, cached on disk.
 
@@ -82,7 +82,10 @@ def compile_with(skeleton, functions, name, parallel=False):
     kernel by its own file only, while the functions bound here are compiled
     into the skeleton with the helpers they call, from other files), so a
     cached skeleton does not outlive an edit of anything it runs, and two
-    combinations never share a cache entry."""
+    combinations never share a cache entry. ``parallel``: threaded (its
+    ``prange`` loops, :func:`prange_only`; numpy's error model, as every
+    threaded kernel has), else serial with numba's ``error_model`` (numpy's
+    for the chunk of a threaded kernel: the same arithmetic as its loop)."""
     code = hashlib.sha1(source_digest())
     for key, f in sorted(functions.items()):
         py = f.py_func
@@ -93,4 +96,4 @@ def compile_with(skeleton, functions, name, parallel=False):
                qualname=f"{skeleton.__name__}_{name}_{code.hexdigest()[:12]}")
     if parallel:
         return nb.njit(cache=True, parallel=prange_only(), error_model="numpy")(fn)
-    return nb.njit(cache=True)(fn)
+    return nb.njit(cache=True, error_model=error_model)(fn)

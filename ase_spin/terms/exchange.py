@@ -17,7 +17,7 @@ from .base import SpinOperator, SpinTerm, Want, mean_buffer
 from .couplings import (FORM, FORM_OFF, FORM_PYTHON, P0, RC2, BetheSlater, Coupling, Cubic,
                         check_coupling, checked_values)
 from .exchange_fused import (exchange_add_kept, exchange_couplings, exchange_forces,
-                             exchange_forces_two, exchange_geometry, exchange_geometry_threaded)
+                             exchange_forces_two, exchange_geometry)
 from .exchange_geometry import direct_kernel, geometry_kernel, geometry_single
 from .exchange_passes import (add_kept_pass, forces_two_pass, spin_pass_formed,
                               spin_pass_half_field, spin_pass_half_formed,
@@ -94,14 +94,14 @@ class ExchangeOperator(SpinOperator):
             return None
         if self.Jbar is None or len(self.Jbar) != len(self.J):
             self.Jbar = np.empty(len(self.J))
-        # the geometry kernel is threaded above the tiny systems (threads.tiny)
-        geometry = exchange_geometry if threads.tiny() else exchange_geometry_threaded
         # as few arrays as the pieces use: each one is unboxed at every call of
         # the fused step, a cost a small system's step feels (benchmarks/small_systems.py;
         # docs/benchmarks.md, "Why each fast path exists")
-        return (exchange_forces, geometry, exchange_couplings,
+        # the geometry kernel is threaded above the tiny systems (threads.tiny)
+        return (exchange_forces, exchange_geometry, exchange_couplings,
                 (threads.count(), p.row, p.j, p.image, p.images, self.J, self.G, self.Jbar,
-                 self.offset, self.params), (exchange_forces_two, exchange_add_kept))
+                 self.offset, self.params, threads.tiny()),
+                (exchange_forces_two, exchange_add_kept))
 
     def linear_pairs(self, mean=False):
         """(pairs, c) with B_i = Σ_j c_k W_j over the pairs k = (i → j): the

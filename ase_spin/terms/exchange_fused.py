@@ -15,7 +15,7 @@ from .exchange_geometry import geometry_single
 from .exchange_passes import add_kept_pass, forces_two_pass, spin_pass_half_kernel
 
 __all__ = ["exchange_forces", "exchange_forces_two", "exchange_add_kept", "exchange_geometry",
-           "exchange_geometry_threaded", "exchange_couplings"]
+           "exchange_couplings"]
 
 
 _geometry_single_serial = geometry_single.serial
@@ -26,7 +26,7 @@ _forces_pass_serial = spin_pass_half_kernel.serial
 def exchange_forces(W, data, F):
     """F += the exchange forces at spins W (:meth:`ExchangeOperator.add`, forces
     only, serial twin, G kept): a piece of the fused step."""
-    nthreads, row, nbr, image, images, J, G, Jbar, offset, params = data
+    nthreads, row, nbr, image, images, J, G, Jbar, offset, params, tiny = data
     _forces_pass_serial(nthreads, row, nbr, image, images, J, np.zeros(0), G,
                         np.zeros((0, 3)), W, W, offset, np.zeros((0, 3)), F, np.zeros(0),
                         np.bool_(False), np.bool_(True), np.bool_(False), np.bool_(False),
@@ -44,7 +44,7 @@ def exchange_forces_two(W, data, there, F):
     partial sums, returned for :func:`exchange_add_kept`
     (:meth:`ExchangeOperator.forces_here_and_there`, serial twin): a piece of
     the fused step."""
-    nthreads, row, nbr, image, images, J, G, Jbar, offset, params = data
+    nthreads, row, nbr, image, images, J, G, Jbar, offset, params, tiny = data
     keep = np.empty((nthreads, len(row) - 1, 6))
     _forces_two_serial(nthreads, row, nbr, G, there[6], W, offset, F, keep, there[5],
                        np.zeros((0, 3)), np.zeros((0, 3)))
@@ -57,29 +57,26 @@ def exchange_add_kept(keep, base, out):
     _add_kept_serial(keep, base, out)
 
 
-@nb.njit(cache=True)
-def exchange_geometry(positions, data, other):
-    """J, G and the midpoint couplings J̄ = ½(J + J_other) at ``positions``
-    (:meth:`Exchange.prepare` with ``out`` and ``mean_with``, one species,
-    serial twin): a piece of the fused step."""
-    nthreads, row, nbr, image, images, J, G, Jbar, offset, params = data
-    rc2, form, p0, p1, p2 = params
-    _geometry_single_serial(positions, row, nbr, image, images, rc2, form, p0, p1, p2, J,
-                            np.zeros(0), G, other[5], Jbar)
-
-
 _geometry_single_parallel = geometry_single.parallel
 
 
 @nb.njit(cache=True)
-def exchange_geometry_threaded(positions, data, other):
-    """:func:`exchange_geometry` with the threaded twin of the geometry kernel
-    (one result per pair: the same bits whatever the threads), as
-    :meth:`Exchange.prepare` runs it above the tiny systems."""
-    nthreads, row, nbr, image, images, J, G, Jbar, offset, params = data
+def exchange_geometry(positions, data, other):
+    """J, G and the midpoint couplings J̄ = ½(J + J_other) at ``positions``
+    (:meth:`Exchange.prepare` with ``out`` and ``mean_with``, one species):
+    a piece of the fused step. The geometry kernel's serial twin in a tiny
+    system (``tiny``: threads.tiny()), else its threaded twin, as
+    :meth:`Exchange.prepare` runs it (one result per pair: the same bits
+    either way); one piece for both, so that one fused step serves every
+    small size."""
+    nthreads, row, nbr, image, images, J, G, Jbar, offset, params, tiny = data
     rc2, form, p0, p1, p2 = params
-    _geometry_single_parallel(positions, row, nbr, image, images, rc2, form, p0, p1, p2, J,
-                              np.zeros(0), G, other[5], Jbar)
+    if tiny:
+        _geometry_single_serial(positions, row, nbr, image, images, rc2, form, p0, p1, p2, J,
+                                np.zeros(0), G, other[5], Jbar)
+    else:
+        _geometry_single_parallel(positions, row, nbr, image, images, rc2, form, p0, p1, p2, J,
+                                  np.zeros(0), G, other[5], Jbar)
 
 
 @nb.njit(cache=True)

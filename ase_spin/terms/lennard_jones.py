@@ -161,9 +161,8 @@ class LennardJones(Term):
         """The forces of :meth:`compute` as a compiled piece (see
         :meth:`Term.compiled_lattice`): the kernel's serial twin in a tiny
         system, else its threaded one, as :meth:`compute` runs it."""
-        forces = _lj_forces if threads.tiny() else _lj_forces_threaded
-        return forces, (threads.all_threads(), pairs.row, pairs.j, pairs.image,
-                            pairs.images, types, table)
+        return _lj_forces, (threads.all_threads(), pairs.row, pairs.j, pairs.image,
+                            pairs.images, types, table, threads.tiny())
 
 
 @nb.njit(cache=True, inline="always")
@@ -256,26 +255,23 @@ def _lj_kernel_chunk(c, want_forces, want_energies, bounds, types, want_virial, 
 
 
 _lj_serial = _lj_kernel.serial
-
-
-@nb.njit(cache=True)
-def _lj_forces(positions, data, forces):
-    """F += the Lennard-Jones forces (:func:`_lj_kernel`, serial twin, the
-    chunks of ``data``): the term's piece of the fused step."""
-    nthreads, row, nbr, image, images, types, table = data
-    _lj_serial(nthreads, positions, row, nbr, image, images, types, table, forces,
-               np.zeros(0), np.bool_(True), np.bool_(False), np.bool_(False),
-               np.bool_(False))  # not literals: see md/fused_skeletons.py
-
-
 _lj_parallel = _lj_kernel.parallel
 
 
 @nb.njit(cache=True)
-def _lj_forces_threaded(positions, data, forces):
-    """:func:`_lj_forces` with the threaded twin (the same chunks, so the same
-    bits): the piece of the fused step above the tiny systems."""
-    nthreads, row, nbr, image, images, types, table = data
-    _lj_parallel(nthreads, positions, row, nbr, image, images, types, table, forces,
-                 np.zeros(0), np.bool_(True), np.bool_(False), np.bool_(False),
-                 np.bool_(False))  # not literals: see md/fused_skeletons.py
+def _lj_forces(positions, data, forces):
+    """F += the Lennard-Jones forces (:func:`_lj_kernel`, the chunks of
+    ``data``): the term's piece of the fused step. The kernel's serial twin in
+    a tiny system (``tiny``: threads.tiny()), else its threaded twin, as
+    :meth:`LennardJones.compute` runs it (the same chunks, so the same bits);
+    one piece for both, so that one fused step serves every small size."""
+    nthreads, row, nbr, image, images, types, table, tiny = data
+    # the flags are not literals: see md/fused_skeletons.py
+    if tiny:
+        _lj_serial(nthreads, positions, row, nbr, image, images, types, table, forces,
+                   np.zeros(0), np.bool_(True), np.bool_(False), np.bool_(False),
+                   np.bool_(False))
+    else:
+        _lj_parallel(nthreads, positions, row, nbr, image, images, types, table, forces,
+                     np.zeros(0), np.bool_(True), np.bool_(False), np.bool_(False),
+                     np.bool_(False))
