@@ -104,11 +104,17 @@ def _pieces(dyn):
     every term offers its pieces, else None."""
     st = dyn._state
     ev = dyn.ev
-    if (not threads.small() or st.ops_next is None or len(st.ops) != 1
+    if (not threads.small() or len(st.ops) != 1
             or ev.neighbors is None or st.constraints or not dyn.half_lists):
         return None
     if not type(dyn).compiled_step:
         return None
+    if st.ops_next is None:
+        # a run's first step: the operator the step prepares at q̃ (its
+        # geometry piece refills it there), made as the general path makes it,
+        # here at q, where the pair lists hold (st.ops were made there)
+        st.ops_next = ev.spin_operators(st.q, mean_with=st.ops, half=dyn.half_lists,
+                                        refreshed=True)
     op_q, op_t = st.ops[0], st.ops_next[0]
     token = ev.state_token
     # per state and pair list: the lattice pieces, each operator's pieces (its
@@ -294,17 +300,19 @@ def collective_block(dyn, steps):
     """Up to ``steps`` whole CollectivePRK steps as one compiled call
     (:func:`run_steps`, or :func:`run_frozen_steps` for a frozen lattice), for a small
     system whose every stage can take the fused step (frozen: whose one spin
-    operator has ``linear_pairs``) and has a predictor history; the state is
+    operator has ``linear_pairs`` and whose stages have a predictor history);
+    the first step of a run included (W starts at s, as CollectivePRK._predict
+    without a history); the state is
     left after the last whole step, the Atoms not written. Returns (steps
     done, sweeps in all, sweeps and geometries of the last step); 0 steps:
     nothing changed, take the general path."""
     st = dyn._state
     if not blocks_allowed(type(dyn)) or not dyn.magnetic or not threads.small():
         return 0, 0, 0, 0
-    if not all(st.history):
-        return 0, 0, 0, 0
     st.policy = dyn.step_policy()
     if dyn.frozen:
+        if not all(st.history):
+            return 0, 0, 0, 0
         return _frozen_block(dyn, steps)
     got = _pieces(dyn)
     if got is None:

@@ -172,9 +172,8 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
         spin_forces(W, op_t, F)  # noqa: F821
     kick(P, 0.5 * h, F, carry_mid, P, carry_p)  # noqa: F821
     order = -1
-    increment = s  # (not used without the predictor)
+    increment = W - s
     if predict and n_history > 0:
-        increment = W - s
         order = best_order(n_history, hs[0], hs[1], hs[2], hs[3], hs[4], hs[5],  # noqa: F821
                            hs[6], hs[7], hs[8], hs[9], hs[10], hs[11], hs[12], hs[13],
                            hs[14], hs[15], increment, probe, probe, kept, kept_n)
@@ -284,10 +283,12 @@ def run_steps(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry
             head, count = heads[stage], counts[stage]
             hs = _history(ring, stage, head, count)
             first_tol = policy.first_tolerance(tol, settle[stage], fraction, loosest)
+            # no history yet (a run's first step): W starts at s, as CollectivePRK._predict
+            W_start = hs[0] if count > 0 else s.copy()
             (status, qt, P, s_new, cq, cs, FLt, W, Wn, th, its, geos, order, moved,
              increment, single, rnd) = fused_step(  # noqa: F821 - bound per combination
                 q, p, s, FL, m, gammas[stage] * dt, carry_q, carry_p, carry_s, carry_mid,
-                hs[0], Wnext, scales[stage], tol, first_tol, floor, max_iter[stage],
+                W_start, Wnext, scales[stage], tol, first_tol, floor, max_iter[stage],
                 theta[stage], lattice, oq, ot, reference, radius, fine_reference, fine_radius,
                 settled_tol, qtol_floor,
                 memory[stage], local[stage], switch[stage], adaptive[stage], one_sweep[stage],
@@ -302,7 +303,8 @@ def run_steps(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry
             new_theta[stage] = th
             if moved >= 0.0:
                 new_settle[stage] = moved
-            new_orders[stage] = order
+            if order >= 0:  # (−1: no history to choose it from; kept, as in Python)
+                new_orders[stage] = order
             new_rounds[stage] = rnd
             new_one_sweep[stage] = single
             increments[stage] = increment
