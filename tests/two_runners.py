@@ -7,7 +7,8 @@ of more than one test file starts a second runner, a child pytest process
 with the same selection, and both take whole test files from one list, each
 file run by whichever process claims it first (an exclusive file create in a
 shared folder): this process from the front of the list, the child from the
-back, until they meet. Each process runs its files as pytest always does;
+back, each starting with files of its own (:data:`MAIN_FIRST`,
+:data:`CHILD_FIRST`), until they meet. Each process runs its files as pytest always does;
 the child sends every report of its tests (serialised by pytest's own hooks,
 as pytest-xdist does) through a file, and this process, once its own files
 are done, waits for the child and reports them as if it had run them: the
@@ -51,6 +52,11 @@ ALONE = ("test_reproducibility.py",)
 CHILD_FIRST = ("test_import_graph.py", "test_gaussian.py", "test_montecarlo.py",
                "test_dipolar_mesh.py", "test_dipolar.py", "test_eam.py", "test_spectra.py",
                "test_io.py", "test_landscapes.py")
+#: Test files this process starts with, in this order, before taking the rest
+#: from the front of the list: the one that compiles the integrators' common
+#: path, then the longest files, so that the two runners meet among short
+#: files (one runner waits for the other's last file at the end).
+MAIN_FIRST = ("test_ase_integration.py", "test_langevin.py", "test_examples.py")
 #: The test that runs test_compilation's scan of every kernel's signatures (a
 #: process of its own): taken by whichever runner runs out of files first
 #: (the kernels are in numba's cache by then, so the scan loads them rather
@@ -119,6 +125,13 @@ def _groups(items):
     return list(groups.items()), [(f"{_file(i)}::scan", [i]) for i in scan], alone
 
 
+def _first(groups, names):
+    """``groups`` (file, items) with the files ``names`` first, in that
+    order, the others after them in their order."""
+    first = {name: k for k, name in enumerate(names)}
+    return sorted(groups, key=lambda g: first.get(g[0].split("/")[-1], len(first)))
+
+
 def _claim(name):
     """True if this process is the first to claim test file ``name``."""
     path = _state["folder"] / "claims" / name.replace("/", "__")
@@ -165,9 +178,9 @@ def pytest_runtestloop(session):
 
     groups, scan, tail = _groups(session.items)
     if is_child():
-        first = {name: k for k, name in enumerate(CHILD_FIRST)}
-        groups, tail = sorted(groups[::-1], key=lambda g: first.get(g[0].split("/")[-1],
-                                                                    len(first))), []
+        groups, tail = _first(groups[::-1], CHILD_FIRST), []
+    else:
+        groups = _first(groups, MAIN_FIRST)
     groups = groups + scan
     # One active thread each while both run: two processes of two threads on
     # two cores would wait at every parallel region for a descheduled worker
@@ -181,7 +194,9 @@ def pytest_runtestloop(session):
             continue
         _run(session, items)
     _state["busy"] = time.perf_counter() - start
-    if not is_child():
+    if is_child():
+        (_state["folder"] / "child_busy").write_text(f"{_state['busy']:.1f}")
+    else:
         waited = time.perf_counter()
         _report_the_child(session, groups)
         _state["waited"] = time.perf_counter() - waited
@@ -196,9 +211,11 @@ def pytest_terminal_summary(terminalreporter):
         return
     claims = _state["folder"] / "claims"
     mine = sum(1 for f in claims.iterdir() if f.read_text() == "main")
+    busy = _state["folder"] / "child_busy"
+    theirs = f" in {float(busy.read_text()):.0f} s" if busy.exists() else ""
     terminalreporter.write_line(
         f"two runners: this process ran {mine} test files in {_state['busy']:.0f} s, the "
-        f"second {sum(1 for _ in claims.iterdir()) - mine} and was waited for "
+        f"second {sum(1 for _ in claims.iterdir()) - mine}{theirs} and was waited for "
         f"{_state['waited']:.0f} s more")
 
 

@@ -104,8 +104,10 @@ class Term(Parameterised):
         ``(f, data)`` with ``f(positions, data, forces)`` a numba function adding
         bitwise the forces :meth:`compute` adds with ``Want(forces=True)``, with
         the twin :meth:`compute` calls at this size (serial where
-        :func:`ase_spin._jit.threads.tiny`, else as the kernel's ``always`` says).
-        None (the default): the integrators take their general path."""
+        :func:`ase_spin._jit.threads.tiny`, else as the kernel's ``always`` says;
+        chosen at run time from a flag in ``data``, so that one compiled step
+        serves every small size). None (the default): the integrators take
+        their general path."""
         return None
 
     def lammps(self, types):
