@@ -48,10 +48,12 @@ ALONE = ("test_reproducibility.py",)
 #: Carlo, the dipolar sums, the Gaussian stream, EAM, spectra, ...), so that
 #: the child compiles those while this process compiles the common path of
 #: the integrators (pair lists, exchange geometry, midpoint solves), instead
-#: of both compiling the same kernels at the same time early in a cold run.
+#: of both compiling the same kernels at the same time early in a cold run
+#: (test_dipolar_mesh last: its reference run takes the small-system step,
+#: which this process compiles first).
 CHILD_FIRST = ("test_import_graph.py", "test_gaussian.py", "test_montecarlo.py",
-               "test_dipolar_mesh.py", "test_dipolar.py", "test_eam.py", "test_spectra.py",
-               "test_io.py", "test_landscapes.py")
+               "test_dipolar.py", "test_eam.py", "test_spectra.py", "test_io.py",
+               "test_landscapes.py", "test_dipolar_mesh.py")
 #: Test files this process starts with, in this order, before taking the rest
 #: from the front of the list: the one that compiles the integrators' common
 #: path, then the longest files, so that the two runners meet among short
