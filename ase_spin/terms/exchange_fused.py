@@ -1,8 +1,8 @@
 """The exchange operator's pieces of the integrators' fused step for small
 systems (:meth:`~ase_spin.terms.exchange.ExchangeOperator.compiled`,
-:mod:`ase_spin.md.fused`): compiled functions calling the serial (or, for the
-geometry, threaded) twins of the exchange kernels, as the operator's methods
-call them at that size. They exist only for the fused step's speed in small
+:mod:`ase_spin.md.fused`): compiled functions calling the serial twins of the
+exchange kernels (the geometry: serial in a tiny system, else threaded, chosen
+at run time), as the operator's methods call them at that size. They exist only for the fused step's speed in small
 systems (``benchmarks/small_systems.py``; docs/benchmarks.md, "Why each fast
 path exists")."""
 
