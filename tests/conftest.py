@@ -195,7 +195,8 @@ def finish(child, timeout=1800):
 # one (tests/two_runners.py); its hooks are this conftest's.
 from two_runners import (pytest_collection_modifyitems, pytest_configure,  # noqa: E402,F401
                          pytest_runtest_logreport, pytest_runtestloop, pytest_sessionfinish,
-                         pytest_sessionstart, pytest_terminal_summary, start_child)
+                         pytest_sessionstart, pytest_terminal_summary, pytest_unconfigure,
+                         start_child)
 
 
 def pytest_collection_finish(session):

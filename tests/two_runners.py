@@ -3,8 +3,9 @@ this one.
 
 A cold run spends most of its time in numba compiling kernels, one core at a
 time; the machine the tests must fit (2 cores) would idle one core. So a run
-of more than one test file starts a second runner, a child pytest process
-with the same selection, and both take whole test files from one list, each
+of more than one test file starts a second runner as it starts, a child
+pytest process that collects the tests beside this one and then keeps this
+one's selection, and both take whole test files from one list, each
 file run by whichever process claims it first (an exclusive file create in a
 shared folder): this process from the front of the list, the child from the
 back, each starting with files of its own (:data:`MAIN_FIRST`,
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -38,6 +40,8 @@ import pytest
 SHARED = "ASE_SPIN_TESTS_SHARED_FOLDER"
 #: Set to 1 to run every test in this process.
 ONE_RUNNER = "ASE_SPIN_TESTS_ONE_RUNNER"
+#: The file (in the shared folder) listing the selected tests' node ids.
+ITEMS = "items.txt"
 
 #: Test files run after the child has ended, in this process: those that fix
 #: two threads (each parallel region waits for both, so a second process
@@ -65,7 +69,7 @@ MAIN_FIRST = ("test_ase_integration.py", "test_langevin.py", "test_examples.py")
 #: than compiling them a third time), while the other finishes its last file.
 SCAN = "test_each_kernel_is_compiled_for_one_set_of_argument_types"
 
-_state = {"child": None, "folder": None, "role": "main"}
+_state = {"child": None, "folder": None, "made": None, "role": "main"}
 
 
 def _file(item):
@@ -85,6 +89,8 @@ def pytest_configure(config):
         _state["role"] = "child"
         _state["folder"] = Path(os.environ[SHARED])
         _end_with_the_parent()
+    else:
+        _start_child(config)
 
 
 def _end_with_the_parent(every=1.0):
@@ -102,10 +108,14 @@ def _end_with_the_parent(every=1.0):
 
 
 def pytest_collection_modifyitems(session, config, items):
-    """The child keeps the items the main process selected (its list)."""
+    """The child keeps the items the main process selected (its list, which
+    it waits for: both processes collect at the same time)."""
     if not is_child():
         return
-    wanted = set((_state["folder"] / "items.txt").read_text().splitlines())
+    path = _state["folder"] / ITEMS
+    while not path.exists():
+        time.sleep(0.05)
+    wanted = set(path.read_text().splitlines())
     keep = [item for item in items if item.nodeid in wanted]
     dropped = [item for item in items if item.nodeid not in wanted]
     if dropped:
@@ -146,26 +156,49 @@ def _claim(name):
     return True
 
 
-def start_child(session):
-    """Start the second runner if the run has more than one test file to share."""
-    if is_child() or os.environ.get(ONE_RUNNER) or session.config.option.collectonly:
-        return
-    groups, _, _ = _groups(session.items)
-    if len(groups) < 2 or session.config.getoption("usepdb", False):
+def _one_file(config):
+    """Whether the command line names test files or tests of one file only."""
+    paths = {str(arg).split("::")[0] for arg in config.args}
+    return len(paths) == 1 and Path(next(iter(paths))).is_file()
+
+
+def _start_child(config):
+    """Start the second runner as this process starts, so that it collects the
+    tests while this one does (a cold collection rewrites every test file's
+    asserts: seconds), unless the run is of one process (:data:`ONE_RUNNER`,
+    one file, --collect-only, --pdb); :func:`start_child` hands it the
+    selection once collected, or stops it."""
+    if (os.environ.get(ONE_RUNNER) or config.option.collectonly
+            or config.getoption("usepdb", False) or _one_file(config)):
         return
     folder = Path(tempfile.mkdtemp(prefix="ase_spin_tests_"))
     (folder / "claims").mkdir()
-    _state["folder"] = folder
-    (folder / "items.txt").write_text("\n".join(item.nodeid for item in session.items))
-    files = [name for name, _ in groups]
-    root = Path(session.config.rootpath)
+    _state["folder"] = _state["made"] = folder
+    root = Path(config.rootpath)
     env = {**os.environ, SHARED: str(folder), "ASE_SPIN_QUIET_COMPILE": "1"}
     log = open(folder / "child.out", "w")
     _state["child"] = subprocess.Popen(
         [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-m", "",
-         "--rootdir", str(root), *files],
-        stdout=log, stderr=subprocess.STDOUT, env=env, cwd=root, start_new_session=True)
+         "--rootdir", str(root), *map(str, config.args)],
+        stdout=log, stderr=subprocess.STDOUT, env=env, cwd=config.invocation_params.dir,
+        start_new_session=True)
     log.close()
+
+
+def start_child(session):
+    """Hand the second runner the selected tests if the run has more than one
+    test file to share, else stop it (this process runs them all)."""
+    if _state["child"] is None:
+        return
+    groups, _, _ = _groups(session.items)
+    folder = _state["folder"]
+    if len(groups) < 2 or session.testsfailed:
+        _stop_child()
+        _state["folder"] = None
+        return
+    partial = folder / (ITEMS + ".part")
+    partial.write_text("\n".join(item.nodeid for item in session.items))
+    partial.rename(folder / ITEMS)
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -294,7 +327,20 @@ def _lost(item, returncode, output):
 
 
 def pytest_sessionfinish(session):
-    """A child the run did not wait for (stopped early, -x) is stopped with it."""
+    """A child the run did not wait for (stopped early, -x) is stopped with it;
+    the shared folder goes (the summary has read it by now)."""
+    _stop_child()
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_unconfigure(config):
+    folder = _state["made"]
+    if folder is not None and not is_child():
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def _stop_child():
+    """Stop the second runner if it is still running."""
     import signal
 
     child = _state["child"]
