@@ -1,9 +1,9 @@
 """The example scripts' command lines: --help, where they write (the current folder
 or the --out they are given, never docs/figures unless asked), and files they report
-as written exist. Each runs in an empty folder: as a separate process, or, where it
-only parses its command line (--help, a refused --out), all of those one after
-another in one process, as ``python script.py ...`` would run them (runpy,
-``__name__ == "__main__"``)."""
+as written exist. Each runs in an empty folder, as ``python script.py ...`` would
+run it (runpy, ``__name__ == "__main__"``): the runs that only parse their command
+line (--help, a refused --out) one after another in one process, the short runs
+in another, the slow ones each in a process of its own."""
 
 import importlib.util
 import json
@@ -94,6 +94,31 @@ def command_lines(tmp_path_factory):
             for (script, args), done, folder in zip(calls, runs, folders)}
 
 
+#: The short runs checked below: (script, arguments), each in an empty folder.
+SHORT_RUNS = {
+    "skyrmion-png": ("skyrmion.py", ["--size", "8", "--steps", "5", "--out", "sky.png"]),
+    "skyrmion-folder": ("skyrmion.py", ["--size", "8", "--steps", "5", "--out", "pictures"]),
+    "metals": ("metals.py", ["--steps", "50"]),
+    "metals-png": ("metals.py", ["--steps", "50", "--out", "fe.png"]),
+    "magnons": ("magnons.py", ["--size", "4", "--steps", "400"]),
+    "skyrmion_barrier": ("skyrmion_barrier.py", ["--size", "12", "--images", "7", "--out",
+                                                 "b.png"]),
+    "dipolar_film": ("dipolar_film.py", ["--ku", "0", "--tilt", "45", "--time", "25",
+                                         "--timestep", "5", "--out", "film.png"]),
+}
+
+
+@pytest.fixture(scope="module")
+def short_runs(tmp_path_factory):
+    """The :data:`SHORT_RUNS`, one after another in one process (a Python
+    start, the imports and the kernels' loads once for them all): (the run,
+    its folder) by name."""
+    names = list(SHORT_RUNS)
+    folders = [tmp_path_factory.mktemp(name.replace("-", "_")) for name in names]
+    runs = run_in_turn([(*SHORT_RUNS[name], folder) for name, folder in zip(names, folders)])
+    return dict(zip(names, zip(runs, folders)))
+
+
 @pytest.mark.parametrize("script", [p.name for p in EXAMPLES])
 def test_help_prints_usage_and_writes_nothing(command_lines, script):
     """`--help` is argparse's: usage on stdout, exit 0, and no file or folder
@@ -111,17 +136,17 @@ def test_examples_writing_several_files_refuse_a_png_out(command_lines, script):
     assert files_in(folder) == []
 
 
-def test_skyrmion_writes_the_png_it_is_given_or_into_a_folder(tmp_path):
-    done = run("skyrmion.py", "--size", "8", "--steps", "5", "--out", "sky.png", cwd=tmp_path)
+def test_skyrmion_writes_the_png_it_is_given_or_into_a_folder(short_runs):
+    done, folder = short_runs["skyrmion-png"]
     assert done.returncode == 0, done.stderr
-    assert files_in(tmp_path) == ["sky.png"]
-    assert reported(done.stdout, tmp_path) == [tmp_path / "sky.png"]
-    done = run("skyrmion.py", "--size", "8", "--steps", "5", "--out", "pictures", cwd=tmp_path)
+    assert files_in(folder) == ["sky.png"]
+    assert reported(done.stdout, folder) == [folder / "sky.png"]
+    done, folder = short_runs["skyrmion-folder"]
     assert done.returncode == 0, done.stderr
-    assert files_in(tmp_path) == ["pictures", "pictures/skyrmion.png", "sky.png"]
+    assert files_in(folder) == ["pictures", "pictures/skyrmion.png"]
 
 
-def test_metals_plots_into_the_current_folder(tmp_path):
+def test_metals_plots_into_the_current_folder(short_runs):
     """The default is iron.png here (it was docs/figures/iron.png); the top panel
     is the conservation check, E_tot − E_tot(0)."""
     from ase_spin.terms.eam_files import lammps_potential_path
@@ -131,13 +156,13 @@ def test_metals_plots_into_the_current_folder(tmp_path):
     except FileNotFoundError:
         pytest.skip("Fe_mm.eam.fs not found")
     pytest.importorskip("matplotlib")
-    done = run("metals.py", "--steps", "50", cwd=tmp_path)
+    done, folder = short_runs["metals"]
     assert done.returncode == 0, done.stderr
-    assert files_in(tmp_path) == ["iron.png"]
-    assert reported(done.stdout, tmp_path) == [tmp_path / "iron.png"]
-    done = run("metals.py", "--steps", "50", "--out", "fe.png", cwd=tmp_path)
+    assert files_in(folder) == ["iron.png"]
+    assert reported(done.stdout, folder) == [folder / "iron.png"]
+    done, folder = short_runs["metals-png"]
     assert done.returncode == 0, done.stderr
-    assert files_in(tmp_path) == ["fe.png", "iron.png"]
+    assert files_in(folder) == ["fe.png"]
 
 
 def test_magnetisation_curve_out_is_a_picture_or_a_folder():
@@ -153,29 +178,28 @@ def test_magnetisation_curve_out_is_a_picture_or_a_folder():
                                                  Path("figs/magnetisation_curve.txt"))
 
 
-def test_magnons_writes_its_figure_and_the_peaks_lie_on_the_bands(tmp_path):
+def test_magnons_writes_its_figure_and_the_peaks_lie_on_the_bands(short_runs):
     pytest.importorskip("matplotlib")
-    done = run("magnons.py", "--size", "4", "--steps", "400", cwd=tmp_path)
+    done, folder = short_runs["magnons"]
     assert done.returncode == 0, done.stderr
-    assert files_in(tmp_path) == ["magnons.png"]
-    assert reported(done.stdout, tmp_path) == [tmp_path / "magnons.png"]
+    assert files_in(folder) == ["magnons.png"]
+    assert reported(done.stdout, folder) == [folder / "magnons.png"]
     resolution = float(re.search(r"resolution ([0-9.]+) meV", done.stdout).group(1))
     worst = float(re.search(r"where resolved: ([0-9.]+) meV", done.stdout).group(1))
     assert worst < resolution
 
 
-def test_skyrmion_barrier_runs_short_and_writes_its_figure(tmp_path):
+def test_skyrmion_barrier_runs_short_and_writes_its_figure(short_runs):
     """The short run: the skyrmion relaxes (Q = −1), the band converges, the
     collapse barrier is positive and its figure is written where asked."""
     pytest.importorskip("matplotlib")
-    done = run("skyrmion_barrier.py", "--size", "12", "--images", "7", "--out", "b.png",
-               cwd=tmp_path)
+    done, folder = short_runs["skyrmion_barrier"]
     assert done.returncode == 0, done.stderr
     assert "Q = -1.0000" in done.stdout and "GNEB converged" in done.stdout
     barrier = float(re.search(r"collapse barrier (\S+) meV", done.stdout).group(1))
     assert barrier > 1.0
-    assert files_in(tmp_path) == ["b.png"]
-    assert reported(done.stdout, tmp_path) == [tmp_path / "b.png"]
+    assert files_in(folder) == ["b.png"]
+    assert reported(done.stdout, folder) == [folder / "b.png"]
 
 
 @pytest.mark.slow
@@ -194,7 +218,7 @@ def test_skyrmion_barrier_with_the_lattice_free(tmp_path):
     assert files_in(tmp_path) == ["lattice", "lattice/skyrmion_barrier.png"]
 
 
-def test_dipolar_film_without_anisotropy_turns_into_the_plane(tmp_path):
+def test_dipolar_film_without_anisotropy_turns_into_the_plane(short_runs):
     """K_u = 0: the three-plane Fe film falls from 45° off the normal into the plane
     (within 2°, m_z < sin 2°), releasing the energy its statics predict,
     (E⊥ − E∥) cos²45° per atom, to 1% (what is left at 2° from the plane is
@@ -203,8 +227,7 @@ def test_dipolar_film_without_anisotropy_turns_into_the_plane(tmp_path):
     (the uniform mode turns in tens of ps; the TimestepWarning is about the
     exchange field's rate, which a uniform state does not feel) keeps it short."""
     pytest.importorskip("matplotlib")
-    done = run("dipolar_film.py", "--ku", "0", "--tilt", "45", "--time", "25", "--timestep",
-               "5", "--out", "film.png", cwd=tmp_path)
+    done, folder = short_runs["dipolar_film"]
     assert done.returncode == 0, done.stderr
     m_z = float(re.search(r"m_z = (\S+),", done.stdout).group(1))
     assert abs(m_z) < math.sin(math.radians(2.0)) and "in-plane, as expected" in done.stdout
@@ -213,8 +236,8 @@ def test_dipolar_film_without_anisotropy_turns_into_the_plane(tmp_path):
     assert statics > 0.0 and abs(released / statics - 1.0) < 0.01
     assert float(re.search(r"monolayer.*relative difference (\S+)\)", done.stdout)
                  .group(1)) < 1e-9
-    assert files_in(tmp_path) == ["film.png"]
-    assert reported(done.stdout, tmp_path) == [tmp_path / "film.png"]
+    assert files_in(folder) == ["film.png"]
+    assert reported(done.stdout, folder) == [folder / "film.png"]
 
 
 @pytest.mark.slow
