@@ -1,0 +1,106 @@
+"""Where a short run's time goes in a fresh process: the start-up a user pays
+once per script (numba's first use, each kernel loaded from numba's disk
+cache) against the steps.
+
+    python benchmarks/startup.py [--dt 0.142] [--order 2] [--runs 3]
+
+The work-precision scene (fcc Co N = 500, LAMMPS's ħ and masses,
+``benchmarks/work_precision.py``), ``CollectivePRK(atoms, dt, order=...)`` with
+default settings, each run a new Python process with the kernels in numba's
+cache (one untimed process fills it first). Timed as work_precision.py times
+a run (from building the scene, ``import ase_spin`` not included): building
+the scene, then ``dyn.run`` of 0.5 ps; every kernel numba loads from its
+cache on the way, with its load time (numba's ``Cache.load_overload``,
+wrapped for the measurement only); then the same run again in that process
+(nothing left to load: the steps alone). Prints per run, then the median of
+each phase; the start-up is the first run less the second.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+#: What one child process runs (argv: dt in fs, order, steps).
+_CHILD = r"""
+import json, sys, time
+from numba.core import caching
+loads = []
+_load = caching.Cache.load_overload
+def timed_load(self, sig, ctx):
+    t = time.perf_counter()
+    got = _load(self, sig, ctx)
+    loads.append((self._name.split(" at ")[0].removeprefix("<function "), time.perf_counter() - t))
+    return got
+caching.Cache.load_overload = timed_load
+sys.path[:0] = [HERE, TESTS]
+import work_precision as wp
+from ase import units
+dt, order, steps = float(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
+make, t_end, kw, _, _, _ = wp.scene_setup("fcc500")
+t0 = time.perf_counter()
+atoms = make()
+t1 = time.perf_counter()
+dyn = wp.CollectivePRK(atoms, dt * units.fs, order=order, **kw)
+dyn.run(steps)
+t2 = time.perf_counter()
+first = len(loads)
+dyn.run(steps)  # the same again in this process: the steps alone
+t3 = time.perf_counter()
+print(json.dumps({"scene": t1 - t0, "run": t2 - t1, "again": t3 - t2,
+                  "per step": (t3 - t2) / steps, "total": t2 - t0,
+                  "loads": loads[:first], "loads again": len(loads) - first}))
+"""
+
+
+def child(dt, order, steps):
+    code = _CHILD.replace("HERE", repr(HERE)).replace(
+        "TESTS", repr(os.path.join(HERE, os.pardir, "tests")))
+    done = subprocess.run([sys.executable, "-c", code, str(dt), str(order), str(steps)],
+                          capture_output=True, text=True, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--dt", type=float, default=0.142, help="fs (default 0.142: the "
+                        "order-2 step that reaches LAMMPS's error at 0.5 fs)")
+    parser.add_argument("--order", type=int, default=2)
+    parser.add_argument("--runs", type=int, default=3)
+    args = parser.parse_args(argv)
+    sys.path.insert(0, HERE)
+    from machine import describe
+
+    print(describe())
+    print(f"# load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    steps = int(round(500.0 / args.dt))
+    child(args.dt, args.order, steps)  # fills numba's cache, untimed
+    runs = [child(args.dt, args.order, steps) for _ in range(args.runs)]
+    for k, run in enumerate(runs):
+        loads = run["loads"]
+        print(f"\nrun {k + 1}: {steps} steps of {args.dt} fs, order {args.order}: "
+              f"{run['total']:.3f} s; {len(loads)} kernels loaded in "
+              f"{sum(t for _, t in loads):.3f} s")
+        for name, t in loads:
+            print(f"  {1e3 * t:7.1f} ms  {name}")
+    print(f"\nmedians of {args.runs} runs (s):")
+    for key in ("scene", "run", "again", "total"):
+        print(f"  {key:14s} {statistics.median(r[key] for r in runs):.3f}")
+    print(f"  {'start-up':14s} {statistics.median(r['run'] - r['again'] for r in runs):.3f}"
+          "  (the run less the same run again)")
+    print(f"  {'loads':14s} {statistics.median(sum(t for _, t in r['loads']) for r in runs):.3f}"
+          f"  (the first: {statistics.median(r['loads'][0][1] for r in runs):.3f}, "
+          "numba's first use included)")
+    print(f"  {'per step':14s} {1e6 * statistics.median(r['per step'] for r in runs):.0f} µs"
+          f" (the run again; kernels loaded in it: {max(r['loads again'] for r in runs)})")
+    print(f"# load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+
+
+if __name__ == "__main__":
+    main()
