@@ -376,6 +376,7 @@ def test_stencil_groups_of_one_parity_write_disjoint_planes(nkeys, reach):
             assert not written[a] & written[b], (a, b)
 
 
+@pytest.mark.alone
 @pytest.mark.slow
 @pytest.mark.skipif(chunks() < 2, reason="numba has one thread here")
 def test_threaded_mesh_kernels_give_the_same_bits_with_one_thread_or_all(monkeypatch):

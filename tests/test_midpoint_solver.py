@@ -133,6 +133,7 @@ def test_solver_argument_is_checked():
         CollectivePRK(fcc_cobalt(1), 1.0, solver="newton")
 
 
+@pytest.mark.alone
 @pytest.mark.skipif(chunks() < 2, reason="numba has one thread here")
 @pytest.mark.parametrize("extra", [False, True])
 def test_anderson_is_bitwise_the_same_with_one_thread_or_all(extra):
@@ -394,6 +395,7 @@ def test_predictor_extrapolates_the_increments():
         assert np.abs(kernels.extrapolate(history, order, s) - expected).max() < 1e-12
 
 
+@pytest.mark.alone
 @pytest.mark.skipif(chunks() < 2, reason="numba has one thread here")
 def test_default_solver_is_bitwise_the_same_with_one_thread_or_all():
     """solver="auto" with its loose first solves and the increment predictor,
@@ -669,6 +671,7 @@ def _simple_cubic_atoms(n, threads=None):
     return atoms
 
 
+@pytest.mark.alone
 @pytest.mark.filterwarnings("ignore::ase_spin.md.errors.TimestepWarning")  # 4 fs: on purpose
 def test_two_colourable_lattice_of_threaded_size_takes_colour_order():
     """Simple cubic, 12³ = 1 728 spins (threaded size), frozen, order 4 at

@@ -377,6 +377,7 @@ def test_langevin_takes_the_fused_step_with_its_own_predictor(n, monkeypatch):
         assert np.array_equal(a, b)
 
 
+@pytest.mark.alone
 def test_fused_step_above_tiny_threads_its_heavy_pieces_same_bits_any_threads(monkeypatch):
     """Between SERIAL_ALL_BELOW and SERIAL_BELOW atoms the fused step calls the
     threaded twins of Lennard-Jones and the exchange geometry, as the general

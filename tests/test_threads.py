@@ -14,6 +14,7 @@ from ase_spin._jit.threads import AdaptiveThreads, chunks
 needs_threads = pytest.mark.skipif(chunks() < 2, reason="numba has one thread here")
 
 
+@pytest.mark.alone
 @needs_threads
 @pytest.mark.parametrize("cls", [CollectivePRK, SuzukiTrotter])
 def test_trajectory_is_bitwise_the_same_with_one_thread_or_all(cls):

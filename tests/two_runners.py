@@ -45,7 +45,8 @@ ITEMS = "items.txt"
 
 #: Test files run after the child has ended, in this process: those that fix
 #: two threads (each parallel region waits for both, so a second process
-#: holding one of the two cores stalls them at every region).
+#: holding one of the two cores stalls them at every region); single tests
+#: that do are marked ``alone`` and join them.
 ALONE = ("test_reproducibility.py",)
 #: Test files the child starts with, in this order, before taking files from
 #: the back of the list: files whose kernels are mostly their own (Monte
@@ -77,7 +78,7 @@ def _file(item):
 
 
 def _alone(item):
-    return _file(item).split("/")[-1] in ALONE
+    return _file(item).split("/")[-1] in ALONE or item.get_closest_marker("alone") is not None
 
 
 def is_child():
