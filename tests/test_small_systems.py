@@ -198,9 +198,37 @@ def test_subclass_overriding_a_step_piece_keeps_the_general_path(monkeypatch):
     assert used["done"] == 0 and used["general"] > 0
 
 
+def test_two_lattice_terms_give_one_piece_chained_in_their_order(monkeypatch):
+    """Two lattice terms: the fused step gets one piece that runs theirs in the
+    terms' order (fused.both_lattice), and it adds the general path's lattice
+    forces to the bit. (The fused step around it is the one-term step's
+    skeleton; a whole run: the slow test below.)"""
+    lj, exchange = paper_chain_terms()
+    atoms = paper_chain()
+    atoms.calc = SpinLatticeCalculator([LennardJones(0.5 * lj.epsilon, lj.sigma, lj.rc),
+                                        LennardJones(0.5 * lj.epsilon, 0.9 * lj.sigma, lj.rc),
+                                        exchange])
+    general_path_only(monkeypatch)  # the piece alone is compiled here
+    dyn = CollectivePRK(atoms, 2.0**-6, hbar=1.0, precession="spin")
+    dyn.run(2)
+    q = dyn._state.q
+    with threads.threads_for(len(atoms)):
+        fn, data = fused._lattice_pieces(dyn.ev)
+        F = np.zeros_like(q)
+        fn(q, data, F)
+        swapped = np.zeros_like(q)
+        fn(q, data[::-1], swapped)
+        general = dyn.ev.lattice(q, Want(forces=True)).forces
+    assert fn.py_func.__name__.startswith("both_lattice") and len(data) == 2
+    assert np.abs(F).max() > 0.0 and np.array_equal(F, general)
+    assert not np.array_equal(swapped, general)  # the order shows in the bits
+
+
+@pytest.mark.slow
 def test_fused_step_composes_several_lattice_terms(monkeypatch):
     """Two lattice terms (their pieces chained in the terms' order) in the
-    fused step: bitwise the general path's trajectory."""
+    fused step: bitwise the general path's trajectory (slow: a fused step of
+    its own to compile, ~25 s)."""
     lj, exchange = paper_chain_terms()
     half = LennardJones(0.5 * lj.epsilon, lj.sigma, lj.rc)
     runs = []
