@@ -55,15 +55,17 @@ ALONE = ("test_reproducibility.py",)
 #: the integrators (pair lists, exchange geometry, midpoint solves), instead
 #: of both compiling the same kernels at the same time early in a cold run
 #: (test_dipolar_mesh last: its reference run takes the small-system step,
-#: which this process compiles first).
+#: which this process compiles first), then test_lammps_plugin, a long file
+#: that would otherwise be among the last (see :data:`MAIN_FIRST`).
 CHILD_FIRST = ("test_import_graph.py", "test_gaussian.py", "test_montecarlo.py",
                "test_dipolar.py", "test_eam.py", "test_spectra.py", "test_io.py",
-               "test_landscapes.py", "test_dipolar_mesh.py")
+               "test_landscapes.py", "test_dipolar_mesh.py", "test_lammps_plugin.py")
 #: Test files this process starts with, in this order, before taking the rest
 #: from the front of the list: the one that compiles the integrators' common
 #: path, then the longest files, so that the two runners meet among short
-#: files (one runner waits for the other's last file at the end).
-MAIN_FIRST = ("test_ase_integration.py", "test_langevin.py", "test_examples.py")
+#: files (one runner waits for the other's last file at the end; test_fuzz:
+#: long, and alphabetically where they would meet).
+MAIN_FIRST = ("test_ase_integration.py", "test_langevin.py", "test_examples.py", "test_fuzz.py")
 #: The test that runs test_compilation's scan of every kernel's signatures (a
 #: process of its own): taken by whichever runner runs out of files first
 #: (the kernels are in numba's cache by then, so the scan loads them rather
