@@ -27,6 +27,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -330,13 +331,14 @@ def _lost(item, returncode, output):
 
 
 def pytest_sessionfinish(session):
-    """A child the run did not wait for (stopped early, -x) is stopped with it;
-    the shared folder goes (the summary has read it by now)."""
+    """A child the run did not wait for (stopped early, -x) is stopped with it."""
     _stop_child()
 
 
 @pytest.hookimpl(trylast=True)
 def pytest_unconfigure(config):
+    """The shared folder goes, once the summary has read it (the one this
+    process made, also when it stopped the child early)."""
     folder = _state["made"]
     if folder is not None and not is_child():
         shutil.rmtree(folder, ignore_errors=True)
@@ -344,8 +346,6 @@ def pytest_unconfigure(config):
 
 def _stop_child():
     """Stop the second runner if it is still running."""
-    import signal
-
     child = _state["child"]
     if child is not None and child.poll() is None:
         try:
