@@ -14,6 +14,13 @@ cache on the way, with its load time (numba's ``Cache.load_overload``,
 wrapped for the measurement only); then the same run again in that process
 (nothing left to load: the steps alone). Prints per run, then the median of
 each phase; the start-up is the first run less the second.
+
+Then where a step's time goes (``--pieces``, in one process after the runs):
+µs per step of the same run, its midpoint sweeps and geometries (couplings
+at q̃) in the last, and each pass over the pairs a step makes timed alone through
+the public evaluator (``Evaluator.lattice``, ``spin_operators``, ``spin`` and an
+operator's ``field``; each call a few µs of Python more than in the compiled
+step), with the pairs each loops over.
 """
 
 from __future__ import annotations
@@ -67,12 +74,73 @@ def child(dt, order, steps):
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+def pieces(dt, order, steps=1000, repeats=5, calls=300):
+    """The step and its passes over the pairs, µs each (minimum of
+    ``repeats`` blocks, this process warm): see the module docstring."""
+    import time
+
+    import numpy as np
+    from ase import units
+
+    sys.path[:0] = [HERE, os.path.join(HERE, os.pardir, "tests")]
+    import work_precision as wp
+    from ase_spin import get_spins
+    from ase_spin.terms.base import Want
+
+    make, _, kw, _, _, _ = wp.scene_setup("fcc500")
+    atoms = make()
+    dyn = wp.CollectivePRK(atoms, dt * units.fs, order=order, **kw)
+    dyn.run(steps // 10)
+
+    def best(run, n):
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            run()
+            times.append((time.perf_counter() - t0) / n * 1e6)
+        return min(times)
+
+    sweeps0, n0 = dyn.total_iterations, dyn.nsteps
+    out = {"step": best(lambda: dyn.run(steps), steps)}
+    out["sweeps a step"] = (dyn.total_iterations - sweeps0) / (dyn.nsteps - n0)
+    out["geometries, the last step"] = dyn.geometry_evaluations
+    ev = dyn.ev
+    q = atoms.positions.copy()
+    W = get_spins(atoms)
+    F = np.zeros_like(q)
+    B = np.zeros_like(q)
+    ops = ev.spin_operators(q, half=True)
+    there = ev.spin_operators(q, half=True)
+
+    def repeat(f):
+        def run():
+            for _ in range(calls):
+                f()
+        return run
+
+    lattice = [t for t in ev.hamiltonian.terms if not t.spin_dependent]
+    spin = [t for t in ev.hamiltonian.terms if t.spin_dependent]
+    passes = {
+        "lattice forces": lambda: ev.lattice(q, Want(forces=True), forces=F),
+        "couplings at new positions": lambda: ev.spin_operators(q, out=there, mean_with=ops,
+                                                                half=True),
+        "spin terms' forces": lambda: ev.spin(ops, W, Want(forces=True), forces=F),
+        "a sweep's fields": lambda: [op.field(W, B, True) for op in there],
+    }
+    for name, f in passes.items():
+        out[name] = best(repeat(f), calls)
+    lengths = {type(t).__name__: t.cutoff for t in lattice + spin}
+    return out, lengths
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--dt", type=float, default=0.142, help="fs (default 0.142: the "
                         "order-2 step that reaches LAMMPS's error at 0.5 fs)")
     parser.add_argument("--order", type=int, default=2)
     parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--pieces", action="store_true", help="then each pass over the "
+                        "pairs a step makes, timed alone")
     args = parser.parse_args(argv)
     sys.path.insert(0, HERE)
     from machine import describe
@@ -99,6 +167,12 @@ def main(argv=None):
           "numba's first use included)")
     print(f"  {'per step':14s} {1e6 * statistics.median(r['per step'] for r in runs):.0f} µs"
           f" (the run again; kernels loaded in it: {max(r['loads again'] for r in runs)})")
+    if args.pieces:
+        got, cutoffs = pieces(args.dt, args.order)
+        print(f"\nwhere a step goes (this process, warm; cutoffs {cutoffs} Å):")
+        for name, value in got.items():
+            unit = "" if "step" in name and name != "step" else " µs"
+            print(f"  {name:28s} {value:8.2f}{unit}")
     print(f"# load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 

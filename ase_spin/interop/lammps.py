@@ -454,7 +454,7 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
     hamiltonian : Hamiltonian, SpinLatticeCalculator or list of terms, optional
         Default ``atoms.calc``'s. Every term must have a LAMMPS form
         (``term.lammps(types)``); those without are refused, all named in one
-        NotImplementedError.
+        NotImplementedError. Its skin is the deck's ``neighbor`` skin.
     timestep : float, optional
         ASE time units, when no integrator is given (with ``lattice``): finite
         and positive. NaN/inf positions, velocities or cell are refused too.
@@ -545,7 +545,10 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
     # after pair_coeff: the eam styles set each type's mass from the potential file
     # (CoAl.eam.alloy: Co 58.9332, ASE 58.933194), which would override the data file's
     deck += [f"mass {k + 1} {number_text(m)}" for k, m in enumerate(masses)]
-    deck += ["neighbor 1.0 bin", "neigh_modify every 1 delay 0 check yes", ""]
+    # the calculator's skin: LAMMPS then loops over the pairs ase_spin does (a skin of
+    # 1 Å made its steps ~1.4x slower on fcc Co: docs/benchmarks.md, "Agreement with LAMMPS")
+    deck += [f"neighbor {number_text(hamiltonian.skin)} bin",
+             "neigh_modify every 1 delay 0 check yes", ""]
     term_fixes = _fix_commands(parts)
     deck += term_fixes
     if thermostat is not None:
