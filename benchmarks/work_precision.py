@@ -308,10 +308,13 @@ def measure(scene, methods, repeats, quick, fresh=True, lammps_ranks=(1, 2), kee
 def at_error(rows, label, target, value=2, column=3):
     """Wall time (``value`` 2; the step: 1) ``label`` needs for spin (column
     3) or position (4) RMS error ``target``, by log-log interpolation between
-    its measured points; None outside their range."""
-    pts = sorted((r[column], r[value]) for r in rows if r[0] == label)
-    for (e0, t0), (e1, t1) in zip(pts, pts[1:]):
-        if e0 <= target <= e1 and e0 > 0:
+    two neighbouring steps of its ladder whose errors bracket it (the largest
+    such steps: where the error is not monotone in the step, as near a
+    resonance, never between points the ladder does not join); None where no
+    two neighbours bracket it."""
+    pts = sorted(((r[1], r[column], r[value]) for r in rows if r[0] == label), reverse=True)
+    for (_, e0, t0), (_, e1, t1) in zip(pts, pts[1:]):
+        if min(e0, e1) <= target <= max(e0, e1) and min(e0, e1) > 0:
             f = np.log(target / e0) / np.log(e1 / e0) if e1 != e0 else 0.0
             return float(np.exp(np.log(t0) + f * np.log(t1 / t0)))
     return None

@@ -419,6 +419,20 @@ def test_terms_without_lammps_counterpart_are_refused_by_name(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+
+@pytest.mark.parametrize("skin", [0.3, 0.55])
+def test_the_deck_keeps_the_calculators_neighbour_skin(tmp_path, skin):
+    """LAMMPS's neighbour lists take the calculator's skin (LAMMPS then loops
+    over the pairs ase_spin does; a wider skin only slows its steps), rebuilt
+    whenever an atom has moved half of it."""
+    atoms = bulk("Co", "fcc", a=3.54, cubic=True).repeat(2)
+    ase_spin.set_spins(atoms, [0, 0, 1], 1.7)
+    atoms.calc = ase_spin.SpinLatticeCalculator(_terms()[:2], skin=skin, conventions="lammps")
+    files = write_lammps(tmp_path, atoms, timestep=0.1 * units.fs, steps=1)
+    deck = files.input.read_text().splitlines()
+    assert f"neighbor {skin:g} bin" in deck
+    assert "neigh_modify every 1 delay 0 check yes" in deck
+
 def test_integrators_map_refuse_or_warn(tmp_path):
     atoms = _scene(bulk("Co", "fcc", a=3.54, cubic=True).repeat(2))
     # the collective integrator without the plugin (tests/test_lammps_plugin.py): written
