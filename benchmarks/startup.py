@@ -20,7 +20,7 @@ Then where a step's time goes (``--pieces``, in one process after the runs):
 at q̃) in the last, and each pass over the pairs a step makes timed alone through
 the public evaluator (``Evaluator.lattice``, ``spin_operators``, ``spin`` and an
 operator's ``field``; each call a few µs of Python more than in the compiled
-step), with the pairs each loops over.
+step), with each term's cutoff.
 """
 
 from __future__ import annotations
