@@ -31,6 +31,7 @@ import os
 import statistics
 import subprocess
 import sys
+import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -77,8 +78,6 @@ def child(dt, order, steps):
 def pieces(dt, order, steps=1000, repeats=5, calls=300):
     """The step and its passes over the pairs, µs each (minimum of
     ``repeats`` blocks, this process warm): see the module docstring."""
-    import time
-
     import numpy as np
     from ase import units
 
@@ -118,8 +117,6 @@ def pieces(dt, order, steps=1000, repeats=5, calls=300):
                 f()
         return run
 
-    lattice = [t for t in ev.hamiltonian.terms if not t.spin_dependent]
-    spin = [t for t in ev.hamiltonian.terms if t.spin_dependent]
     passes = {
         "lattice forces": lambda: ev.lattice(q, Want(forces=True), forces=F),
         "couplings at new positions": lambda: ev.spin_operators(q, out=there, mean_with=ops,
@@ -129,8 +126,7 @@ def pieces(dt, order, steps=1000, repeats=5, calls=300):
     }
     for name, f in passes.items():
         out[name] = best(repeat(f), calls)
-    lengths = {type(t).__name__: t.cutoff for t in lattice + spin}
-    return out, lengths
+    return out, {type(t).__name__: t.cutoff for t in ev.hamiltonian.terms}
 
 
 def main(argv=None):

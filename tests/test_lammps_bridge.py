@@ -419,7 +419,6 @@ def test_terms_without_lammps_counterpart_are_refused_by_name(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
-
 @pytest.mark.parametrize("skin", [0.3, 0.55])
 def test_the_deck_keeps_the_calculators_neighbour_skin(tmp_path, skin):
     """LAMMPS's neighbour lists take the calculator's skin (LAMMPS then loops
@@ -432,6 +431,7 @@ def test_the_deck_keeps_the_calculators_neighbour_skin(tmp_path, skin):
     deck = files.input.read_text().splitlines()
     assert f"neighbor {skin:g} bin" in deck
     assert "neigh_modify every 1 delay 0 check yes" in deck
+
 
 def test_integrators_map_refuse_or_warn(tmp_path):
     atoms = _scene(bulk("Co", "fcc", a=3.54, cubic=True).repeat(2))

@@ -545,8 +545,8 @@ def write_lammps(directory, atoms, dynamics=None, *, steps=0, hamiltonian=None, 
     # after pair_coeff: the eam styles set each type's mass from the potential file
     # (CoAl.eam.alloy: Co 58.9332, ASE 58.933194), which would override the data file's
     deck += [f"mass {k + 1} {number_text(m)}" for k, m in enumerate(masses)]
-    # the calculator's skin: LAMMPS then loops over the pairs ase_spin does (a skin of
-    # 1 Å made its steps ~1.4x slower on fcc Co: docs/benchmarks.md, "Agreement with LAMMPS")
+    # the calculator's skin: LAMMPS then loops over the pairs ase_spin does (a wider one
+    # only slows its steps: benchmarks/lammps_skin.py, docs/benchmarks.md)
     deck += [f"neighbor {number_text(hamiltonian.skin)} bin",
              "neigh_modify every 1 delay 0 check yes", ""]
     term_fixes = _fix_commands(parts)
