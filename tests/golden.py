@@ -9,6 +9,14 @@ features); on a CPU not in the record the test checks a rounded fingerprint
 (10 significant digits of sums of the arrays) instead.
 
 ``python tests/golden.py --record`` adds this CPU's hashes to the record.
+
+``python tests/golden.py --cpu znver4 [--record]`` runs the scenes as numba
+compiles them for another CPU of the record (its name and features given to
+numba: ``NUMBA_CPU_NAME``, ``NUMBA_CPU_FEATURES``, in a process of its own with
+a cache folder of its own), says which hashes match, and with ``--record``
+records them under that CPU: a change of the last bits can then be recorded
+for a CPU one does not have, on a host that runs all of its instructions (an
+Intel Xeon with AVX-512, emeraldrapids, reproduced all 15 znver4 hashes).
 """
 
 from __future__ import annotations
@@ -130,19 +138,68 @@ def load():
     return json.loads(RECORD.read_text()) if RECORD.exists() else {"hashes": {}, "fingerprints": {}}
 
 
-if __name__ == "__main__":
+#: Set in the process :func:`as_cpu` starts: the record's CPU it compiles for.
+AS_CPU = "ASE_SPIN_GOLDEN_CPU"
+
+
+def recorded_cpu(name):
+    """The record's CPU (its key) whose name is ``name``."""
+    keys = [k for k in load()["hashes"] if k.split(" ", 1)[0] == name]
+    if len(keys) != 1:
+        raise SystemExit(f"the record has {len(keys)} CPUs named {name!r}: "
+                         f"{sorted(k.split(' ', 1)[0] for k in load()['hashes'])}")
+    return keys[0]
+
+
+def as_cpu(key, argv):
+    """Run this script with ``argv`` in a new process that numba compiles
+    for the record's CPU ``key`` (a cache folder of its own, kept between
+    calls, so that no kernel compiled for one CPU is loaded for another)."""
+    import os
+    import subprocess
+    import tempfile
+
+    name, features = key.split(" ", 1)
+    cache = os.path.join(tempfile.gettempdir(), f"ase_spin_golden_{name}")
+    env = dict(os.environ, NUMBA_CPU_NAME=name, NUMBA_CPU_FEATURES=features,
+               NUMBA_CACHE_DIR=cache, **{AS_CPU: key})
+    return subprocess.run([sys.executable, __file__, *argv], env=env, check=False).returncode
+
+
+def main(argv=None):
+    import argparse
+    import os
+
     import pytest
 
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("names", nargs="*", help="scenes (default: all)")
+    parser.add_argument("--record", action="store_true", help="record the hashes")
+    parser.add_argument("--cpu", help="compile for this CPU of the record (its name)")
+    args = parser.parse_args(argv)
+    if args.cpu and AS_CPU not in os.environ:
+        rest = [*args.names, *(["--record"] if args.record else [])]
+        return as_cpu(recorded_cpu(args.cpu), rest)
+    key = os.environ.get(AS_CPU) or cpu()
     record = load()
-    names = [a for a in sys.argv[1:] if not a.startswith("-")] or list(SCENES)
-    hashes = record["hashes"].setdefault(cpu(), {})
-    for name in names:
+    hashes = record["hashes"].setdefault(key, {})
+    differ = 0
+    for name in args.names or list(SCENES):
         with pytest.MonkeyPatch.context() as patch:
             general_path(name, patch.setattr)
             digest, fingerprint = run(name)
-        print(f"{name:28s} {digest[:16]}  {fingerprint}")
-        if "--record" in sys.argv:
+        same = {None: "not recorded", True: "as recorded", False: "CHANGED"}[
+            None if name not in hashes else hashes[name] == digest]
+        differ += same == "CHANGED"
+        print(f"{name:28s} {digest[:16]}  {same:12s} {fingerprint}")
+        if args.record:
             hashes[name] = digest
             record["fingerprints"][name] = fingerprint
-    if "--record" in sys.argv:
+    print(f"# {key.split(' ', 1)[0]}: {differ} scenes changed")
+    if args.record:
         RECORD.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
