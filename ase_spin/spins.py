@@ -37,8 +37,16 @@ def _existing_magnitudes(atoms):
 MOMENT_RANGE = (1e-100, 1e100)
 
 
-def _check_magnitudes(mu, what):
+#: Relative slack of the range for moments read back from the Atoms: a moment
+#: stored as μ·s (set_spins) has |μ·s| within a few ulps of μ, so one set at
+#: the range's edge may read back just outside it.
+_STORED_SLACK = 4.0 * np.finfo(float).eps
+
+
+def _check_magnitudes(mu, what, stored=False):
     lo, hi = MOMENT_RANGE
+    if stored:
+        lo, hi = lo * (1.0 - _STORED_SLACK), hi * (1.0 + _STORED_SLACK)
     bad = np.flatnonzero((mu != 0.0) & ~((mu >= lo) & (mu <= hi)))
     if bad.size:
         raise ValueError(
@@ -137,7 +145,7 @@ def get_moments(atoms):
     if not np.isfinite(m).all():
         bad = np.flatnonzero(~np.isfinite(m).all(axis=1))
         raise ValueError(f"magnetic moments are not finite for {name_atoms(bad)}")
-    _check_magnitudes(split_moments(m)[1], "magnetic moments")
+    _check_magnitudes(split_moments(m)[1], "magnetic moments", stored=True)
     return m
 
 

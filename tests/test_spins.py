@@ -77,6 +77,24 @@ def test_bad_magnitudes_raise():
     assert not atoms.has("initial_magmoms")
 
 
+def test_moments_at_the_ranges_edges_read_back():
+    """A magnitude set_spins accepts reads back, though |μ·s| rounds to a
+    few ulps beyond the range's edge for some directions (found by
+    tests/fuzz.py's hypothesis_spins: ~1 in 8 directions at 1e-100 or 1e100);
+    a moment stored farther out is still refused."""
+    from ase_spin.spins import MOMENT_RANGE
+
+    directions = np.random.default_rng(1).normal(size=(200, 3))
+    atoms = Atoms("Fe200", positions=np.arange(600.0).reshape(200, 3))
+    for mu in MOMENT_RANGE:
+        set_spins(atoms, directions, mu)
+        assert np.allclose(np.linalg.norm(get_moments(atoms), axis=1), mu, rtol=1e-15, atol=0)
+        assert np.abs(np.linalg.norm(get_spins(atoms), axis=1) - 1.0).max() <= 4e-16
+    atoms.set_initial_magnetic_moments(np.array([[0.0, 0.0, 1.01e100]] * 200))
+    with pytest.raises(ValueError, match="outside the supported range"):
+        get_moments(atoms)
+
+
 def test_collinear_moments_are_refused_where_vectors_are_needed():
     atoms = Atoms("Fe3", positions=np.eye(3) * 3)
     atoms.set_initial_magnetic_moments([0.0, 2.0, 0.0])
