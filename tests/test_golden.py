@@ -1,6 +1,8 @@
 """The golden record (tests/golden.py): every reference scene ends on the same
-bits as recorded: before the reorganisation, and once since, when the end points
-of the locally exact sweeps stopped accumulating W's rounding."""
+bits as recorded: before the reorganisation, and twice since, when the end points
+of the locally exact sweeps stopped accumulating W's rounding, and when
+CollectivePRK took F_L at the q̃ of its couplings (so that the compiled step
+makes it beside the solve; within round-off of the last drift's q̃)."""
 
 import numpy as np
 import pytest

@@ -215,9 +215,9 @@ def test_two_lattice_terms_give_one_piece_chained_in_their_order(monkeypatch):
     with threads.threads_for(len(atoms)):
         fn, data = fused._lattice_pieces(dyn.ev)
         F = np.zeros_like(q)
-        fn(q, data, F)
+        fn(q, data, F, False)
         swapped = np.zeros_like(q)
-        fn(q, data[::-1], swapped)
+        fn(q, data[::-1], swapped, False)
         general = dyn.ev.lattice(q, Want(forces=True)).forces
     assert fn.py_func.__name__.startswith("both_lattice") and len(data) == 2
     assert np.abs(F).max() > 0.0 and np.array_equal(F, general)
@@ -676,7 +676,7 @@ def test_fused_end_forces_begun_in_the_last_rounds_pass_change_no_bit(monkeypatc
         with monkeypatch.context() as m:
             if not merge:
                 m.setattr(fused, "_pieces", lambda dyn: (
-                    None if pieces(dyn) is None else pieces(dyn)[:4] + (False,)))
+                    None if pieces(dyn) is None else pieces(dyn)[:4] + (False,) + pieces(dyn)[5:]))
             atoms = fcc_cobalt(3, temperature_K=300)
             dyn = CollectivePRK(atoms, dt_fs * units.fs)
             for _ in range(3):
@@ -689,3 +689,46 @@ def test_fused_end_forces_begun_in_the_last_rounds_pass_change_no_bit(monkeypatc
     for x, y in ((a.positions, b.positions), (a.get_momenta(), b.get_momenta()),
                  (a.get_initial_magnetic_moments(), b.get_initial_magnetic_moments())):
         np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("dt_fs, order", [(0.15, 2), (1.0, 4)])
+def test_lattice_forces_beside_the_solve_change_no_bit(monkeypatch, dt_fs, order):
+    """The fused step makes F_L on one thread while the other makes the
+    couplings and solves (coupled_step's ``overlap``, taken above the tiny
+    systems): the same bits as one after the other, on two threads and on one,
+    and as the general path, which takes F_L at the same q̃ (the last
+    geometry's); at 1 fs, order 4, a stage takes two geometries, and only the
+    F_L of the last is kept."""
+    from ase_spin.md import fused
+
+    pieces = fused._pieces
+    seen = []
+
+    def go(overlap, n):
+        with monkeypatch.context() as m:
+            def spy(dyn):
+                got = pieces(dyn)
+                if got is None:
+                    return None
+                seen.append(got[5])
+                return got[:5] + (overlap and got[5],)
+            m.setattr(fused, "_pieces", spy)
+            atoms = fcc_cobalt(3, temperature_K=300)
+            dyn = CollectivePRK(atoms, dt_fs * units.fs, order=order, threads=n)
+            dyn.run(10)
+            dyn.step()
+            return atoms, dyn
+
+    runs = [go(True, 2), go(False, 2), go(True, 1)]
+    assert all(seen) and len(seen) >= 2 * len(runs)  # taken at this size
+    # the last step's geometries: more than one a stage at order 4
+    assert runs[0][1].geometry_evaluations > (5 if order == 4 else 0)
+    atoms = fcc_cobalt(3, temperature_K=300)
+    general_path_only(monkeypatch)
+    CollectivePRK(atoms, dt_fs * units.fs, order=order).run(11)
+    for other in [r[0] for r in runs[1:]] + [atoms]:
+        for x, y in ((runs[0][0].positions, other.positions),
+                     (runs[0][0].get_momenta(), other.get_momenta()),
+                     (runs[0][0].get_initial_magnetic_moments(),
+                      other.get_initial_magnetic_moments())):
+            np.testing.assert_array_equal(x, y)

@@ -327,7 +327,10 @@ class CollectivePRK(MidpointSolves, SpinLatticeDynamics):
             raise SpinConvergenceError(
                 f"positions q̃ and midpoint spins did not settle in {policy.MAX_ROUNDS} "
                 f"outer iterations at step {self.nsteps}; reduce the timestep")
-        self._lattice_at(qt, want_energy)
+        # F_L at the q̃ of the step's couplings (within round-off of the last
+        # drift's: policy.settled_qtol), so that the compiled step can make it
+        # beside the midpoint solve (fused_skeletons.coupled_step)
+        self._lattice_at(qt_used, want_energy)
         if pending is not None:
             F = self._finish_round(pending)
         else:

@@ -62,7 +62,7 @@ def step_function(lattice, spin, two=None):
                     "solve_half": kernels.midpoint_solve_half.serial,
                     "extrapolate": kernels.extrapolate_rows.serial,
                     "best_order": kernels.best_order_rows},
-            f"{lattice.__name__}_{forces.__name__}")
+            f"{lattice.__name__}_{forces.__name__}", parallel=True)
     return fn
 
 
@@ -144,7 +144,11 @@ def _pieces(dyn):
     reference = ev.neighbors.reference
     if reference is None or reference.shape != st.q.shape:
         return None
-    return step, lattice_data, piece_q[3], piece_t[3], pieces["merge"]
+    # F_L beside the midpoint solve, on another thread (coupled_step's
+    # ``overlap``): where there are lattice forces and the system is not so
+    # small that starting a parallel region costs more than they do
+    overlap = lattice_fn is not no_lattice and not threads.tiny()
+    return step, lattice_data, piece_q[3], piece_t[3], pieces["merge"], overlap
 
 
 def _validity(ev):
@@ -174,7 +178,7 @@ def collective_step(dyn, h, stage):
     got = _pieces(dyn)
     if got is None:
         return None
-    step, lattice_data, data_q, data_t, merge = got
+    step, lattice_data, data_q, data_t, merge, overlap = got
     st = dyn._state
     ev = dyn.ev
     scale = dyn._scale(h)
@@ -208,7 +212,7 @@ def collective_step(dyn, h, stage):
                                        local, switch, adaptive, bool(st.one_sweep[stage]),
                                        predict, coef, hs, n_history,
                                        st.probe, st.kept[stage], st.kept_n[stage:stage + 1],
-                                       field, merge, st.settled_round[stage])
+                                       field, merge, st.settled_round[stage], overlap)
     if status != DONE:
         return None
     st.settled_round[stage] = settled_in
@@ -317,7 +321,7 @@ def collective_block(dyn, steps):
     got = _pieces(dyn)
     if got is None:
         return 0, 0, 0, 0
-    step, lattice_data, data_q, data_t, merge = got
+    step, lattice_data, data_q, data_t, merge, overlap = got
     run = _runner(step)
     ev = dyn.ev
     rules = st.policy
@@ -337,7 +341,7 @@ def collective_block(dyn, steps):
                             data_q,
                             data_t, *_validity(ev),
                             rules.settled_tol, rules.qtol_floor,
-                            kernels.COEFFICIENTS, merge, rounds)
+                            kernels.COEFFICIENTS, merge, rounds, overlap)
     if done:
         st.q, st.p, st.s, st.FL = q, p, s, FL
         st.EL, st.EL_terms, st.VL = None, None, None

@@ -30,7 +30,7 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
           first_tol, floor, max_iter, theta, lattice, op_q, op_t, reference, radius,
           fine_reference, fine_radius, settled_tol, qtol_floor, memory, local, switch,
           adaptive, one_sweep, predict, coef, hs, n_history, probe, kept, kept_n, field, merge,
-          settled_round):
+          settled_round, overlap):
     """The skeleton of the fused step (compiled with ``lattice_forces``,
     ``spin_forces``, ``spin_geometry`` and ``spin_couplings`` bound to the
     terms' pieces): CollectivePRK._coupled_step for one spin operator on a
@@ -62,7 +62,13 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
     ``merge`` (the operator offers ``spin_forces_two``), the outer round
     ``settled_round`` (the one the last step settled in) also begins the end
     forces, as CollectivePRK._round_forces; returned last: the round this step
-    settled in (−1: by a solve that moved W by round-off only)."""
+    settled in (−1: by a solve that moved W by round-off only).
+
+    F_L is taken at the q̃ of the step's couplings (the last geometry's, within
+    round-off of the last drift's), as CollectivePRK._coupled_step takes it. With
+    ``overlap`` it is made on one thread while another makes the couplings at
+    each new q̃ and solves there (two branches of a ``prange``; with one thread
+    in turn, the same bits); the one made at the last geometry is kept."""
     if predict:
         W = np.empty_like(s)
         extrapolate(coef, hs[0], hs[1], hs[2], hs[3], hs[4], hs[5], hs[6], hs[7],  # noqa: F821
@@ -87,6 +93,10 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
     no_order = np.zeros(0, dtype=np.int64)  # kernels.NO_ORDER: sweeps in index order
     no_external = np.zeros((0, 3))  # kernels.NO_FIELD: no field held fixed
     settled_in = -1
+    FLt = np.zeros_like(q)
+    made_at = -1  # the geometry FLt was made at (beside its solve), −1: none
+    ints = np.zeros(3, dtype=np.int64)  # a solve's results from beside F_L: its, status, which
+    reals = np.zeros(3)  # ... delta, the contraction measured, how far W moved
     for rnd in range(policy.MAX_ROUNDS):
         F = FL.copy()
         if merge and solved and rnd == settled_round:
@@ -120,9 +130,7 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
             if not (moved_list <= radius and moved_sublists <= fine_radius):
                 return (GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
                         one_sweep, settled_round)
-            spin_geometry(qt, op_t, op_q)  # noqa: F821
             geometries += 1
-        row, nbr, c = spin_couplings(op_t)  # noqa: F821
         stilde = np.zeros_like(s)
         carry = np.zeros_like(s)
         use_tol = first_tol if solves == 0 else tol
@@ -131,10 +139,31 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
         chooses = adaptive and solves == 0 and not use_tol > tol
         if chooses:
             use_local = policy.auto_takes_local(one_sweep, theta)
-        its, delta, status, which, measured, moved_w = solve_half(  # noqa: F821
-            np.int64(1), row, nbr, c, s, W, Wnext, stilde, scale, use_tol, floor, max_iter,
-            policy.start_contraction(theta), carry_s, carry, memory, use_local, field,
-            no_order, no_order, no_external)
+        if overlap and new_q:
+            # F_L at this q̃ on one thread, its couplings and the solve on the other
+            FLt[:] = 0.0
+            for branch in nb.prange(2):
+                if branch == 0:
+                    lattice_forces(qt, lattice, FLt, True)  # noqa: F821
+                else:
+                    spin_geometry(qt, op_t, op_q, True)  # noqa: F821
+                    row, nbr, c = spin_couplings(op_t)  # noqa: F821
+                    got = solve_half(  # noqa: F821
+                        np.int64(1), row, nbr, c, s, W, Wnext, stilde, scale, use_tol, floor,
+                        max_iter, policy.start_contraction(theta), carry_s, carry, memory,
+                        use_local, field, no_order, no_order, no_external)
+                    ints[0], reals[0], ints[1], ints[2], reals[1], reals[2] = got
+            its, delta, status, which, measured, moved_w = (
+                ints[0], reals[0], ints[1], ints[2], reals[1], reals[2])
+            made_at = geometries
+        else:
+            if new_q:
+                spin_geometry(qt, op_t, op_q, False)  # noqa: F821
+            row, nbr, c = spin_couplings(op_t)  # noqa: F821
+            its, delta, status, which, measured, moved_w = solve_half(  # noqa: F821
+                np.int64(1), row, nbr, c, s, W, Wnext, stilde, scale, use_tol, floor, max_iter,
+                policy.start_contraction(theta), carry_s, carry, memory, use_local, field,
+                no_order, no_order, no_external)
         if status == kernels.NOT_CONVERGED or policy.gives_up(its, measured, switch):
             return (GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
                     one_sweep, settled_round)
@@ -159,8 +188,9 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
     if not settled:
         return (GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
                 one_sweep, settled_round)
-    FLt = np.zeros_like(q)
-    lattice_forces(qt, lattice, FLt)  # noqa: F821
+    if made_at != geometries:
+        FLt[:] = 0.0
+        lattice_forces(qt_used, lattice, FLt, False)  # noqa: F821
     if not all_finite(FLt):
         return (GIVE_UP, q, p, s, q, s, FL, W, Wnext, theta, 0, 0, -1, settle, s,
                 one_sweep, settled_round)
@@ -172,13 +202,25 @@ def coupled_step(q, p, s, FL, m, h, carry_q, carry_p, carry_s, carry_mid, W, Wne
         spin_forces(W, op_t, F)  # noqa: F821
     kick(P, 0.5 * h, F, carry_mid, P, carry_p)  # noqa: F821
     order = -1
-    increment = W - s
+    increment = difference(W, s)
     if predict and n_history > 0:
         order = best_order(n_history, hs[0], hs[1], hs[2], hs[3], hs[4], hs[5],  # noqa: F821
                            hs[6], hs[7], hs[8], hs[9], hs[10], hs[11], hs[12], hs[13],
                            hs[14], hs[15], increment, probe, probe, kept, kept_n)
     return (DONE, qt, P, stilde, carry_qt, carry, FLt, W, Wnext, theta, iterations,
             geometries, order, settle, increment, one_sweep, settled_in)
+
+
+@nb.njit(cache=True)
+def difference(a, b):
+    """a − b as a loop: an array expression in the fused step, compiled with
+    ``parallel`` for its branches, would be compiled as a function of its own
+    that numba then warns it cannot parallelise."""
+    out = np.empty_like(a)
+    for i in range(a.shape[0]):
+        for k in range(a.shape[1]):
+            out[i, k] = a[i, k] - b[i, k]
+    return out
 
 
 @nb.njit(cache=True, inline="always")
@@ -243,7 +285,7 @@ def run_steps(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry
          Wnext, tol, fraction, loosest, floor, max_iter, theta, settle, memory, local, switch,
          adaptive, one_sweep, orders, ring, counts, heads, probe, kept, kept_n, lattice, op_q, op_t, reference,
          radius, fine_reference, fine_radius, settled_tol, qtol_floor, coefficients, merge,
-         rounds):
+         rounds, overlap):
     """Up to ``steps`` whole steps (every stage γ_k h of the composition) of the
     fused step (compiled with ``fused_step`` bound to :func:`coupled_step` of the
     terms' pieces), as CollectivePRK takes them one by one with nothing
@@ -256,7 +298,7 @@ def run_steps(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry
     difference tables of
     its order choice (``kept``, ``kept_n``: per stage; those of a step not
     taken are dropped, kept_n = 0), the outer round each
-    stage settled in (``rounds``; ``merge``: see :func:`coupled_step`). A step is taken whole or
+    stage settled in (``rounds``; ``merge``, ``overlap``: see :func:`coupled_step`). A step is taken whole or
     not at all: where a stage gives up (see :func:`coupled_step`) the state is that
     of the last whole step (``carry_p``, the one array the step changes in
     place, put back). Returns (steps done, the stage that gave up or −1, q, p,
@@ -294,7 +336,7 @@ def run_steps(steps, q, p, s, FL, m, dt, gammas, scales, carry_q, carry_p, carry
                 memory[stage], local[stage], switch[stage], adaptive[stage], one_sweep[stage],
                 count > 0, coefficients[min(orders[stage], count - 1)], hs, count, probe,
                 kept[stage],
-                kept_n[stage:stage + 1], field, merge, rounds[stage])
+                kept_n[stage:stage + 1], field, merge, rounds[stage], overlap)
             if status != DONE:
                 failed = stage
                 break
@@ -419,14 +461,14 @@ def run_frozen_steps(steps, s, dt, gammas, scales, carry_s, Wnext, tol, floor, m
     return done, s, carry_s, Wnext, sweeps, last_sweeps
 
 
-def both_lattice(positions, data, forces):
+def both_lattice(positions, data, forces, serial):
     """Two lattice pieces in turn (the terms' order, as Evaluator.lattice)."""
-    first_lattice(positions, data[0], forces)  # noqa: F821
-    second_lattice(positions, data[1], forces)  # noqa: F821
+    first_lattice(positions, data[0], forces, serial)  # noqa: F821
+    second_lattice(positions, data[1], forces, serial)  # noqa: F821
 
 
 @nb.njit(cache=True)
-def no_lattice(positions, data, forces):
+def no_lattice(positions, data, forces, serial):
     pass
 
 

@@ -101,13 +101,14 @@ class Term(Parameterised):
     def compiled_lattice(self, pairs, types, table):
         """Optional, for lattice terms: this term's forces as a compiled piece
         of the integrators' fused step for small systems (:mod:`ase_spin.md.fused`):
-        ``(f, data)`` with ``f(positions, data, forces)`` a numba function adding
-        bitwise the forces :meth:`compute` adds with ``Want(forces=True)``, with
-        the twin :meth:`compute` calls at this size (serial where
-        :func:`ase_spin._jit.threads.tiny`, else as the kernel's ``always`` says;
-        chosen at run time from a flag in ``data``, so that one compiled step
-        serves every small size). None (the default): the integrators take
-        their general path."""
+        ``(f, data)`` with ``f(positions, data, forces, serial)`` a numba
+        function adding bitwise the forces :meth:`compute` adds with
+        ``Want(forces=True)``, with the twin :meth:`compute` calls at this size
+        (serial where :func:`ase_spin._jit.threads.tiny`, else as the kernel's
+        ``always`` says; chosen at run time from a flag in ``data``, so that one
+        compiled step serves every small size), or the serial twin where
+        ``serial`` (the step makes them on one thread beside its midpoint
+        solve). None (the default): the integrators take their general path."""
         return None
 
     def lammps(self, types):
@@ -186,9 +187,10 @@ class SpinOperator:
 
         - ``forces(W, data, F)``: add the lattice forces at spins W (:meth:`add`
           with ``Want(forces=True)``);
-        - ``geometry(positions, data, other)``: refill ``data`` at new positions,
-          with the midpoint quantities from the operator of ``other`` (the term's
-          ``prepare(positions, out=this, mean_with=that)``);
+        - ``geometry(positions, data, other, serial)``: refill ``data`` at new
+          positions, with the midpoint quantities from the operator of ``other``
+          (the term's ``prepare(positions, out=this, mean_with=that)``), with the
+          serial twin where ``serial`` (on one thread beside the lattice forces);
         - ``couplings(data) -> (row, nbr, c)``: the midpoint field as
           B̄_i = Σ_k c_k W_j over a half pair list (``linear_pairs(mean=True)``).
 

@@ -97,10 +97,12 @@ class ExchangeOperator(SpinOperator):
         # as few arrays as the pieces use: each one is unboxed at every call of
         # the fused step, a cost a small system's step feels (benchmarks/small_systems.py;
         # docs/benchmarks.md, "Why each fast path exists")
-        # the geometry kernel is threaded above the tiny systems (threads.tiny)
+        # the geometry kernel is threaded above the tiny systems (threads.tiny);
+        # the parameters as an array: a tuple of five floats cannot be passed
+        # into the fused step's parallel branches (numba's parfor arguments)
         return (exchange_forces, exchange_geometry, exchange_couplings,
                 (threads.count(), p.row, p.j, p.image, p.images, self.J, self.G, self.Jbar,
-                 self.offset, self.params, threads.tiny()),
+                 self.offset, np.array(self.params), threads.tiny()),
                 (exchange_forces_two, exchange_add_kept))
 
     def linear_pairs(self, mean=False):

@@ -61,17 +61,18 @@ _geometry_single_parallel = geometry_single.parallel
 
 
 @nb.njit(cache=True)
-def exchange_geometry(positions, data, other):
+def exchange_geometry(positions, data, other, serial):
     """J, G and the midpoint couplings J̄ = ½(J + J_other) at ``positions``
     (:meth:`Exchange.prepare` with ``out`` and ``mean_with``, one species):
     a piece of the fused step. The geometry kernel's serial twin in a tiny
-    system (``tiny``: threads.tiny()), else its threaded twin, as
-    :meth:`Exchange.prepare` runs it (one result per pair: the same bits
-    either way); one piece for both, so that one fused step serves every
+    system (``tiny``: threads.tiny()) or where the step asks for it
+    (``serial``: on one thread beside the lattice forces), else its threaded
+    twin, as :meth:`Exchange.prepare` runs it (one result per pair: the same
+    bits either way); one piece for both, so that one fused step serves every
     small size."""
     nthreads, row, nbr, image, images, J, G, Jbar, offset, params, tiny = data
-    rc2, form, p0, p1, p2 = params
-    if tiny:
+    rc2, form, p0, p1, p2 = params[0], params[1], params[2], params[3], params[4]
+    if tiny or serial:
         _geometry_single_serial(positions, row, nbr, image, images, rc2, form, p0, p1, p2, J,
                                 np.zeros(0), G, other[5], Jbar)
     else:

@@ -259,15 +259,17 @@ _lj_parallel = _lj_kernel.parallel
 
 
 @nb.njit(cache=True)
-def _lj_forces(positions, data, forces):
+def _lj_forces(positions, data, forces, serial):
     """F += the Lennard-Jones forces (:func:`_lj_kernel`, the chunks of
     ``data``): the term's piece of the fused step. The kernel's serial twin in
-    a tiny system (``tiny``: threads.tiny()), else its threaded twin, as
-    :meth:`LennardJones.compute` runs it (the same chunks, so the same bits);
-    one piece for both, so that one fused step serves every small size."""
+    a tiny system (``tiny``: threads.tiny()) or where the step asks for it
+    (``serial``: made on one thread beside other work), else its threaded
+    twin, as :meth:`LennardJones.compute` runs it (the same chunks, so the
+    same bits); one piece for both, so that one fused step serves every small
+    size."""
     nthreads, row, nbr, image, images, types, table, tiny = data
     # the flags are not literals: see md/fused_skeletons.py
-    if tiny:
+    if tiny or serial:
         _lj_serial(nthreads, positions, row, nbr, image, images, types, table, forces,
                    np.zeros(0), np.bool_(True), np.bool_(False), np.bool_(False),
                    np.bool_(False))
