@@ -21,9 +21,13 @@ Intel Xeon with AVX-512, emeraldrapids, reproduced all 15 znver4 hashes).
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import json
+import os
+import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -155,10 +159,6 @@ def as_cpu(key, argv):
     """Run this script with ``argv`` in a new process that numba compiles
     for the record's CPU ``key`` (a cache folder of its own, kept between
     calls, so that no kernel compiled for one CPU is loaded for another)."""
-    import os
-    import subprocess
-    import tempfile
-
     name, features = key.split(" ", 1)
     cache = os.path.join(tempfile.gettempdir(), f"ase_spin_golden_{name}")
     env = dict(os.environ, NUMBA_CPU_NAME=name, NUMBA_CPU_FEATURES=features,
@@ -167,9 +167,6 @@ def as_cpu(key, argv):
 
 
 def main(argv=None):
-    import argparse
-    import os
-
     import pytest
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
