@@ -52,3 +52,56 @@ def best_time(f, natoms, reps=3):
             f()
             times.append(time.perf_counter() - t)
     return min(times)
+
+
+def core_speeds(rounds=4, calls=300):
+    """µs of one serial Lennard-Jones pass of fcc Co N = 500 (the pair kernel
+    at its one-thread size), this process pinned to each core in turn, for
+    ``rounds`` rounds: whether the cores run alike, and whether each keeps its
+    speed (on a shared VM they need not)."""
+    import time
+
+    import numpy as np
+
+    from ase_spin._jit import threads
+    from ase_spin.scenes import fcc_cobalt
+    from ase_spin.terms.base import Want
+
+    atoms = fcc_cobalt(5)
+    ev, _ = atoms.calc.bound_evaluator(atoms)
+    q = atoms.positions.copy()
+    forces = np.zeros_like(q)
+    cores = sorted(os.sched_getaffinity(0))
+    rows = []
+    try:
+        with threads.threads_for(threads.SERIAL_ALL_BELOW - 1):  # every kernel serial
+            ev.lattice(q, Want(forces=True), forces=forces)
+            for _ in range(rounds):
+                row = []
+                for core in cores:
+                    os.sched_setaffinity(0, {core})
+                    t = time.perf_counter()
+                    for _ in range(calls):
+                        ev.lattice(q, Want(forces=True), forces=forces)
+                    row.append(1e6 * (time.perf_counter() - t) / calls)
+                rows.append(row)
+    finally:
+        os.sched_setaffinity(0, cores)
+    return cores, rows
+
+
+if __name__ == "__main__":
+    import argparse
+
+    parser = argparse.ArgumentParser(description="Describe this machine; with --cores, time "
+                                     "one serial pair pass pinned to each core in turn.")
+    parser.add_argument("--cores", action="store_true")
+    parser.add_argument("--rounds", type=int, default=4)
+    args = parser.parse_args()
+    print(describe())
+    if args.cores:
+        cores, rows = core_speeds(args.rounds)
+        print("# one serial Lennard-Jones pass, fcc Co N = 500 (µs), pinned to core: "
+              + ", ".join(str(c) for c in cores))
+        for k, row in enumerate(rows):
+            print(f"round {k + 1}: " + "  ".join(f"{t:7.1f}" for t in row))
