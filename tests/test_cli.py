@@ -443,12 +443,14 @@ def test_console_script_is_declared_and_the_module_runs(tmp_path):
     assert any(d.startswith("tqdm") for d in project["dependencies"])
     path = write_input(tmp_path, steps=2, interval=1)
     env = {**os.environ, "PYTHONPATH": PACKAGE_PATH}
+    # "-m" puts the working folder first on sys.path: run from the input's folder,
+    # not the tree (whose copy's kernels this run has not compiled)
     done = subprocess.run([sys.executable, "-m", "ase_spin.app.cli", "run", str(path)],
-                          capture_output=True, text=True, env=env, timeout=600)
+                          capture_output=True, text=True, env=env, timeout=600, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert "2/2" in done.stderr and "done: 2 steps" in done.stdout
     bad = subprocess.run([sys.executable, "-m", "ase_spin.app.cli", "run", str(path)],
-                         capture_output=True, text=True, env=env, timeout=600)
+                         capture_output=True, text=True, env=env, timeout=600, cwd=tmp_path)
     assert bad.returncode == 2 and "exist" in bad.stderr
 
 
@@ -726,12 +728,12 @@ def test_compile_command_fills_an_empty_cache_for_later_runs(tmp_path):
     env.pop("ASE_SPIN_QUIET_COMPILE", None)
     first = subprocess.run([sys.executable, "-m", "ase_spin.app.cli", "compile", str(path), str(path),
                             "--jobs", "2"], capture_output=True, text=True, env=env,
-                           timeout=1200)
+                           timeout=1200, cwd=tmp_path)  # (not the tree's copy: "-m")
     assert first.returncode == 0, first.stderr
     assert "kernel(s) compiled" in first.stdout and "compiling numba" not in first.stderr
     run = subprocess.run([sys.executable, "-m", "ase_spin.app.cli", "run", str(path), "--steps", "2",
                           "--no-progress"], capture_output=True, text=True, env=env,
-                         timeout=1200)
+                         timeout=1200, cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     assert "compiling numba kernels" not in run.stderr, run.stderr
 

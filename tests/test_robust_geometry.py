@@ -2,8 +2,10 @@
 process, never asks for absurd memory, and gives the same pairs however far the
 atoms are from the cell or from each other."""
 
+import os
 import subprocess
 import sys
+import tempfile
 import textwrap
 
 import numpy as np
@@ -14,7 +16,7 @@ import ase_spin
 from ase_spin import Exchange, BetheSlater, LennardJones, SpinLatticeCalculator
 from ase_spin.neighbors import NeighborCache, separation, sweep_pairs, wrap_positions
 
-from conftest import CO_BS, CO_LJ, random_spins, structures
+from conftest import CO_BS, CO_LJ, PACKAGE_PATH, random_spins, structures
 
 PROPS = ("energy", "forces", "magnetic_forces", "stress")
 
@@ -89,8 +91,12 @@ def test_no_case_kills_the_process():
             except ValueError as err:
                 print({name!r}, "ValueError", flush=True)
             """))
+    # from a neutral folder, with the copy the tests import ("-c" puts the working
+    # folder first on sys.path: the tree's, when run from it, whose kernels this
+    # run has not compiled)
     out = subprocess.run([sys.executable, "-c", "\n".join(lines)], capture_output=True,
-                         text=True, timeout=600)
+                         text=True, timeout=600, cwd=tempfile.gettempdir(),
+                         env={**os.environ, "PYTHONPATH": PACKAGE_PATH})
     assert out.returncode == 0, (out.returncode, out.stdout, out.stderr[-3000:])
     seen = dict(line.rsplit(" ", 1) for line in out.stdout.strip().splitlines())
     for name, (_, expected) in CRASH_CASES.items():
