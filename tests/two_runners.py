@@ -55,12 +55,14 @@ ALONE = ("test_reproducibility.py",)
 #: the child compiles those while this process compiles the common path of
 #: the integrators (pair lists, exchange geometry, midpoint solves), instead
 #: of both compiling the same kernels at the same time early in a cold run
-#: (test_dipolar_mesh last: its reference run takes the small-system step,
-#: which this process compiles first), then test_lammps_plugin, a long file
-#: that would otherwise be among the last (see :data:`MAIN_FIRST`).
+#: (test_dipolar after test_landscapes and test_dipolar_mesh last: their
+#: reference runs take the small-system step, which this process compiles
+#: first; taken earlier, test_dipolar compiled it again beside this process),
+#: then test_lammps_plugin, a long file that would otherwise be among the last
+#: (see :data:`MAIN_FIRST`).
 CHILD_FIRST = ("test_import_graph.py", "test_gaussian.py", "test_montecarlo.py",
-               "test_dipolar.py", "test_eam.py", "test_spectra.py", "test_io.py",
-               "test_landscapes.py", "test_dipolar_mesh.py", "test_lammps_plugin.py")
+               "test_landscapes.py", "test_dipolar.py", "test_eam.py", "test_spectra.py",
+               "test_io.py", "test_dipolar_mesh.py", "test_lammps_plugin.py")
 #: Test files this process starts with, in this order, before taking the rest
 #: from the front of the list: the one that compiles the integrators' common
 #: path, then the longest files, so that the two runners meet among short
