@@ -55,15 +55,16 @@ def best_time(f, natoms, reps=3):
 
 
 def core_speeds(rounds=4, calls=300):
-    """µs of one serial Lennard-Jones pass of fcc Co N = 500 (the pair kernel
-    at its one-thread size), this process pinned to each core in turn, for
-    ``rounds`` rounds: whether the cores run alike, and whether each keeps its
-    speed (on a shared VM they need not)."""
+    """µs of one Lennard-Jones pass of fcc Co N = 500 on one thread (numba's
+    active threads set to one: the pair kernel is threaded at every size),
+    this process pinned to each core in turn, for ``rounds`` rounds: whether
+    the cores run alike, and whether each keeps its speed (on a shared VM they
+    need not)."""
     import time
 
+    import numba
     import numpy as np
 
-    from ase_spin._jit import threads
     from ase_spin.scenes import fcc_cobalt
     from ase_spin.terms.base import Want
 
@@ -73,20 +74,22 @@ def core_speeds(rounds=4, calls=300):
     forces = np.zeros_like(q)
     cores = sorted(os.sched_getaffinity(0))
     rows = []
+    active = numba.get_num_threads()
+    numba.set_num_threads(1)
     try:
-        with threads.threads_for(threads.SERIAL_ALL_BELOW - 1):  # every kernel serial
-            ev.lattice(q, Want(forces=True), forces=forces)
-            for _ in range(rounds):
-                row = []
-                for core in cores:
-                    os.sched_setaffinity(0, {core})
-                    t = time.perf_counter()
-                    for _ in range(calls):
-                        ev.lattice(q, Want(forces=True), forces=forces)
-                    row.append(1e6 * (time.perf_counter() - t) / calls)
-                rows.append(row)
+        ev.lattice(q, Want(forces=True), forces=forces)
+        for _ in range(rounds):
+            row = []
+            for core in cores:
+                os.sched_setaffinity(0, {core})
+                t = time.perf_counter()
+                for _ in range(calls):
+                    ev.lattice(q, Want(forces=True), forces=forces)
+                row.append(1e6 * (time.perf_counter() - t) / calls)
+            rows.append(row)
     finally:
         os.sched_setaffinity(0, cores)
+        numba.set_num_threads(active)
     return cores, rows
 
 
@@ -94,14 +97,14 @@ if __name__ == "__main__":
     import argparse
 
     parser = argparse.ArgumentParser(description="Describe this machine; with --cores, time "
-                                     "one serial pair pass pinned to each core in turn.")
+                                     "one pair pass on one thread pinned to each core in turn.")
     parser.add_argument("--cores", action="store_true")
     parser.add_argument("--rounds", type=int, default=4)
     args = parser.parse_args()
     print(describe())
     if args.cores:
         cores, rows = core_speeds(args.rounds)
-        print("# one serial Lennard-Jones pass, fcc Co N = 500 (µs), pinned to core: "
+        print("# one Lennard-Jones pass on one thread, fcc Co N = 500 (µs), pinned to core: "
               + ", ".join(str(c) for c in cores))
         for k, row in enumerate(rows):
             print(f"round {k + 1}: " + "  ".join(f"{t:7.1f}" for t in row))

@@ -168,7 +168,8 @@ def _kernel_passes(op, W, h, dyn, calls):
     from ase_spin.terms.exchange_passes import spin_pass_half_kernel
 
     pairs, c = op.linear_pairs()  # (J: what J̄ costs the same)
-    scale = np.broadcast_to(np.asarray(dyn._scale(h), dtype=float), (len(W),)).copy()
+    # c_i = hσ/ħ · r_i, r_i = 1: the scene's LAMMPS gyromagnetic convention
+    scale = np.full(len(W), h * dyn.sigma / dyn.hbar)
     buffers = [np.zeros_like(W) for _ in range(4)]
 
     def solve(sweeps):
